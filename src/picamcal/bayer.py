@@ -1,0 +1,92 @@
+"""Array functions on Bayer mosaics: per-site planes, binning and channel averaging."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .raw.model import site_channels
+
+
+def bin_edges(n_pixels: int, bin_size: int) -> np.ndarray:
+    """Start index (in sensor pixels) of each bin along an axis, plus the end; the last bin may be partial.
+
+    Examples
+    --------
+    >>> bin_edges(40, 16).tolist()
+    [0, 16, 32, 40]
+    """
+    return np.append(np.arange(0, n_pixels, bin_size), n_pixels)
+
+
+def bin_centres(n_pixels: int, bin_size: int, site: int | None = None) -> np.ndarray:
+    """Centre (in sensor pixel coordinates, pixel centres at integers) of each bin along an axis.
+
+    With ``site`` (0 or 1, the position within the 2x2 Bayer block along this axis) it is the mean
+    position of that site's pixels in the bin, half a pixel off the bin's centre: a per-site bin mean
+    is a sample there.
+
+    Examples
+    --------
+    >>> bin_centres(40, 16).tolist()
+    [7.5, 23.5, 35.5]
+    >>> bin_centres(40, 16, site=1).tolist()
+    [8.0, 24.0, 36.0]
+    """
+    edges = bin_edges(n_pixels, bin_size)
+    if site is None:
+        return (edges[:-1] + edges[1:] - 1) / 2.0
+    first = edges[:-1] + site
+    last = first + 2 * ((edges[1:] - 1 - first) // 2)
+    return (first + last) / 2.0
+
+
+def bin_sites(mosaic: np.ndarray, bin_size: int) -> np.ndarray:
+    """Mean of each 2x2 Bayer site over square bins of ``bin_size`` sensor pixels.
+
+    Parameters
+    ----------
+    mosaic : ndarray, shape (H, W)
+        A Bayer mosaic (any numeric dtype; black-subtracted float for calibration).
+    bin_size : int
+        Even bin edge length in sensor pixels; a partial bin at the right and bottom edges is kept.
+
+    Returns
+    -------
+    ndarray of float64, shape (ceil(H / bin_size), ceil(W / bin_size), 4)
+        Per-bin mean of sites (0, 0), (0, 1), (1, 0), (1, 1) of the 2x2 block.
+
+    Examples
+    --------
+    >>> m = np.arange(16, dtype=float).reshape(4, 4)
+    >>> bin_sites(m, 2)[0, 0].tolist()
+    [0.0, 1.0, 4.0, 5.0]
+    """
+    if bin_size < 2 or bin_size % 2:
+        raise ValueError(f"bin_size must be an even number of pixels >= 2, got {bin_size}")
+    half = bin_size // 2
+    out = []
+    for sy in (0, 1):
+        for sx in (0, 1):
+            plane = mosaic[sy::2, sx::2]
+            ry = np.arange(0, plane.shape[0], half)
+            rx = np.arange(0, plane.shape[1], half)
+            sums = np.add.reduceat(np.add.reduceat(plane, ry, axis=0, dtype=np.float64), rx, axis=1)
+            counts = np.outer(np.diff(np.append(ry, plane.shape[0])), np.diff(np.append(rx, plane.shape[1])))
+            out.append(sums / counts)
+    return np.stack(out, axis=-1)
+
+
+def sites_to_channels(sites: np.ndarray, pattern: str) -> np.ndarray:
+    """Average per-site values (..., 4) into R, G, B channels (..., 3); the two greens are averaged.
+
+    Examples
+    --------
+    >>> sites_to_channels(np.array([1.0, 2.0, 4.0, 3.0]), "RGGB").tolist()
+    [1.0, 3.0, 3.0]
+    """
+    idx = site_channels(pattern)
+    out = np.zeros((*sites.shape[:-1], 3), dtype=np.result_type(sites.dtype, np.float32))
+    counts = np.bincount(idx, minlength=3)
+    for site, channel in enumerate(idx):
+        out[..., channel] += sites[..., site]
+    return out / counts

@@ -1,0 +1,250 @@
+"""The ``picamcal`` command line: a thin skin over the library.
+
+Each command parses its arguments, calls the library and prints. Every PicamcalError becomes one
+line on stderr and exit status 2, here in :func:`main` and nowhere else.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from ._version import __version__
+from .errors import OutputError, PicamcalError, PicamcalWarning
+
+app = typer.Typer(
+    help="Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+console = Console(stderr=True)
+MODE_HELP = "balance (colour balance only), flat (vignetting), centre (unmix to the centre's colours), pure"
+
+
+def _progress() -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+    )
+
+
+def _version(value: bool) -> None:
+    if value:
+        print(f"picamcal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool | None, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")
+    ] = None,
+) -> None:
+    """Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics."""
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
+
+
+@app.command("calibrate")
+def calibrate_cmd(
+    folder: Annotated[
+        Path | None,
+        typer.Argument(help="Folder holding the white, red, green, blue and (optional) black references."),
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Calibration file to write (.npz).")] = Path(
+        "calibration.npz"
+    ),
+    white: Annotated[Path | None, typer.Option(help="White reference raw file.")] = None,
+    red: Annotated[Path | None, typer.Option(help="Red reference raw file.")] = None,
+    green: Annotated[Path | None, typer.Option(help="Green reference raw file.")] = None,
+    blue: Annotated[Path | None, typer.Option(help="Blue reference raw file.")] = None,
+    black: Annotated[Path | None, typer.Option(help="Dark frame (optional).")] = None,
+    bin_size: Annotated[int, typer.Option(help="Bin edge in sensor pixels (even).")] = 16,
+    smoothing: Annotated[float, typer.Option(help="Gaussian smoothing of the fields, in bins (0 = none).")] = 0.0,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
+) -> None:
+    """Measure the flat field and colour-unmixing field from reference images."""
+    from .calibrate import calibrate
+    from .references import find_references
+
+    named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
+    refs = find_references(folder) if folder is not None else {}
+    refs.update({role: path for role, path in named.items() if path is not None})
+    missing = [role for role in ("white", "red", "green", "blue") if role not in refs]
+    if missing:
+        raise typer.BadParameter(f"give a folder of references or --{' --'.join(missing)}")
+    if out.exists() and not overwrite:
+        raise OutputError("exists already (use --overwrite to replace it)", out)
+    if any(_same_file(out, p) for p in refs.values()):
+        raise OutputError("is one of the input files; choose another --out", out)
+    with console.status("calibrating"):
+        cal = calibrate(**refs, bin_size=bin_size, smoothing=smoothing)
+        cal.save(out, overwrite=overwrite)
+    console.print(
+        f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
+        f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, "
+        f"worst noise penalty (centre mode) {float(cal.noise_penalty('centre').max()):.2f}"
+    )
+
+
+@app.command("correct")
+def correct_cmd(
+    calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
+    images: Annotated[list[Path], typer.Argument(help="Raw images to correct.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder for <stem>.tiff files.")],
+    mode: Annotated[str, typer.Option(help=MODE_HELP)] = "centre",
+    binned: Annotated[bool, typer.Option(help="Write the bin-resolution image instead of full resolution.")] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace existing output files.")] = False,
+) -> None:
+    """Correct raw images; write float32 linear RGB TIFF files (white = 1.0)."""
+    from .calibration import MODES, load_calibration
+    from .correct import correct
+    from .output import write_rgb_tiff
+    from .raw import read_raw
+
+    if mode not in MODES:
+        raise typer.BadParameter(f"{mode!r} is not one of {', '.join(MODES)}", param_hint="--mode")
+    cal = load_calibration(calibration)
+    targets = [out / f"{image.stem}.tiff" for image in images]
+    stems = [t.name for t in targets]
+    for image, target in zip(images, targets, strict=True):
+        if stems.count(target.name) > 1:
+            raise OutputError(f"two inputs would both write {target.name}; correct them separately", image)
+        if any(_same_file(target, src) for src in images):
+            raise OutputError("output would replace an input file; choose another --out", target)
+        if target.exists() and not overwrite:
+            raise OutputError("exists already (use --overwrite to replace it)", target)
+    out.mkdir(parents=True, exist_ok=True)
+    with _progress() as progress:
+        task = progress.add_task(f"correcting ({mode})", total=len(images))
+        for image, target in zip(images, targets, strict=True):
+            raw = read_raw(image)
+            rgb = correct(raw, cal, mode=mode, binned=binned)
+            info = {"source": image.name, "calibration": calibration.name, "mode": mode, "binned": binned}
+            write_rgb_tiff(target, rgb, info, overwrite=overwrite)
+            progress.advance(task)
+    console.print(f"wrote {len(images)} image(s) to {out}")
+
+
+def _parse_size(size: str | None) -> tuple[int, int] | None:
+    if size is None:
+        return None
+    try:
+        w, h = (int(v) for v in size.lower().split("x"))
+    except ValueError:
+        raise typer.BadParameter(f"{size!r} is not WIDTHxHEIGHT", param_hint="--size") from None
+    if w < 16 or h < 16 or w % 2 or h % 2:
+        raise typer.BadParameter("width and height must be even and at least 16", param_hint="--size")
+    return w, h
+
+
+@app.command("simulate")
+def simulate_cmd(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+    sensor: Annotated[str, typer.Option(help="ov5647, imx219, imx477 or imx708.")] = "imx219",
+    tilt: Annotated[tuple[float, float], typer.Option(help="Sensor tilt about x and y, degrees.")] = (0.0, 0.0),
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    pattern: Annotated[str | None, typer.Option(help="Bayer order (default: the sensor's).")] = None,
+    size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
+    noise: Annotated[bool, typer.Option(help="Shot and read noise.")] = True,
+    dust: Annotated[int, typer.Option(help="Number of dust specks on the white reference.")] = 0,
+    overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
+) -> None:
+    """Simulate a calibration run: five references, a colour-wheel target and the ground truth."""
+    from .simulate import simulate_run
+
+    with console.status(f"simulating {sensor}"):
+        paths = simulate_run(
+            out,
+            sensor,
+            pattern=pattern,
+            size=_parse_size(size),
+            tilt=tilt,
+            seed=seed,
+            noise=noise,
+            dust=dust,
+            overwrite=overwrite,
+        )
+    console.print(f"wrote {len(paths)} files to {out}")
+
+
+@app.command("demo")
+def demo_cmd(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("picamcal-demo"),
+    sensor: Annotated[str, typer.Option(help="Simulated sensor.")] = "imx219",
+    size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    overwrite: Annotated[bool, typer.Option(help="Write into a folder that is not empty.")] = False,
+) -> None:
+    """Run the whole method on the simulated camera and print the figures before and after."""
+    from .demo import STEPS, run_demo
+    from .sensors import get_sensor
+
+    get_sensor(sensor)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise OutputError("folder exists and is not empty (use --overwrite to write into it)", out)
+    with _progress() as progress:
+        task = progress.add_task("demo", total=len(STEPS))
+
+        def step(description: str) -> None:
+            progress.update(task, description=description, completed=STEPS.index(description))
+
+        figures = run_demo(out, sensor, size=_parse_size(size), seed=seed, progress=step)
+        progress.update(task, description="done", completed=len(STEPS))
+    table = Table(title=f"picamcal demo: simulated {sensor} {figures['size'][0]}x{figures['size'][1]}")
+    table.add_column("mode")
+    for heading in (
+        "white flatness CV %",
+        "corner ΔE2000 max",
+        "corner ΔE2000 mean",
+        "corner saturation",
+        "noise penalty",
+    ):
+        table.add_column(heading, justify="right")
+    for mode, row in figures["modes"].items():
+        table.add_row(
+            mode,
+            f"{row['white_flatness_percent']:.2f}",
+            f"{row['max_delta_e']:.2f}",
+            f"{row['mean_delta_e']:.2f}",
+            f"{row['corner_saturation_ratio']:.2f}",
+            f"{row['worst_noise_penalty']:.2f}",
+        )
+    stdout = Console()
+    stdout.print(table)
+    for mode, meaning in figures["mode_meaning"].items():
+        stdout.print(f"  {mode}: {meaning}")
+    stdout.print(f"Calibration, previews (target_<mode>.png) and figures.json are in {out}/")
+
+
+def _warn(message, category, filename, lineno, file=None, line=None) -> None:
+    if issubclass(category, PicamcalWarning):
+        print(f"picamcal: warning: {message}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``picamcal`` command: runs the app and turns errors into exit status 2."""
+    warnings.showwarning = _warn
+    try:
+        # Typer reports usage errors itself (exit status 2); the library's errors reach us here.
+        app(args=argv, prog_name="picamcal")
+    except PicamcalError as exc:
+        print(f"picamcal: error: {exc}", file=sys.stderr)
+        sys.exit(2)

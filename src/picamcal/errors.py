@@ -1,0 +1,47 @@
+"""The project's exception and warning types.
+
+Every problem with a user's input is raised as a :class:`PicamcalError` whose message names the file
+(when there is one) and the problem in one line; the command line prints that line and exits with
+status 2.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+
+
+class PicamcalError(Exception):
+    """Base class of every error picamcal raises about its inputs.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, in one line.
+    path : path-like, optional
+        The file the problem is about; it is put in front of the message.
+    """
+
+    def __init__(self, message: str, path: str | PathLike[str] | None = None) -> None:
+        self.path = None if path is None else str(path)
+        self.problem = message
+        super().__init__(message if path is None else f"{path}: {message}")
+
+
+class RawFormatError(PicamcalError):
+    """A file is missing, unreadable, or not a raw image picamcal can read."""
+
+
+class CalibrationInputError(PicamcalError):
+    """The reference images cannot give a trustworthy calibration."""
+
+
+class CalibrationFileError(PicamcalError):
+    """A calibration file is corrupt, of an unknown schema, or does not fit the image."""
+
+
+class OutputError(PicamcalError):
+    """An output cannot be written (exists already, or the place is not writable)."""
+
+
+class PicamcalWarning(UserWarning):
+    """Something is suspicious but the result is still usable."""

@@ -1,0 +1,934 @@
+"""A physical simulator of a Raspberry Pi camera sensor under normally incident light, and its test targets.
+
+The model follows the paper's section "Chief Ray Angle compensation" and its Figure "lenslets": every
+pixel has a lenslet, a colour filter and a photodiode. To suit the oblique chief rays of the stock phone
+lens, the lenslets are spaced slightly closer than the pixels, so away from the centre each lenslet sits
+shifted towards the sensor centre. Under normally incident light (a microscope, a lens made for a larger
+sensor, the paper's LED jig) the focused spot then misses its own photodiode: the response falls off
+towards the edges (vignetting), and part of the light lands on the neighbouring photodiodes, which sit
+under filters of other colours (colour crosstalk, hence desaturated colours at the edges).
+
+All lengths are in pixels; pixel centres are at integer coordinates and the sensor centre is
+``c = ((W - 1) / 2, (H - 1) / 2)``.
+
+1. Filtered light at lenslet ``P`` with filter colour ``f(P)`` (from the Bayer pattern)::
+
+       L(P) = T[f] * sum_l S[f, l] * a_l(P) * scale
+
+   where ``a(P)`` are the amounts of the red, green and blue primaries (LEDs or screen) in the scene,
+   ``S`` the spectral overlap of filter ``f`` and primary ``l``, ``T`` the channel sensitivity and
+   ``scale`` the illumination that exposes the brightest white pixel to ``exposure`` of the range.
+2. The spot of lenslet ``P`` lands at ``P + d(P)`` with ``d(P) = -k (P - c) + t``: ``k`` makes the shift
+   ``lenslet_shift_corner`` pixels at the corner, and a tilt of the sensor adds
+   ``t = stack_height * (tan(tilt_x), tan(tilt_y))``, which moves the vignetting centre by ``t / k``.
+3. The spot is a Gaussian whose width depends on the filter colour (the lenslets are not achromatic);
+   photodiode ``Q`` is a square of width ``a``. The fraction of ``P``'s light that ``Q`` collects is
+   ``box(Qx - Px - dx; s) * box(Qy - Py - dy; s)`` with ``box(u; s) = Phi((u + a/2)/s) - Phi((u - a/2)/s)``,
+   ``d`` evaluated at ``Q`` (it varies slowly), summed over the 5x5 lenslets around ``Q``. Light beyond
+   the frame is the mirror image of the frame (numpy ``"reflect"``, which keeps the Bayer parity).
+4. Shot noise (Poisson in electrons), Gaussian read noise, the black level, rounding and clipping to
+   ``[0, white_level]`` give the raw mosaic.
+
+The sum in step 3 is evaluated per 2x2 site parity of ``Q``: for a given parity and offset the colour of
+the source lenslet is fixed, and the box factors are 1-D arrays along x and y, so the whole frame is a few
+dozen shifted slices times row and column weights (an 8-megapixel frame renders in about a second).
+
+Examples
+--------
+>>> camera = make_camera("imx219", size=(320, 240))
+>>> refs = simulate_references(camera, seed=1)
+>>> refs["white"].bayer.shape, refs["white"].pattern
+((240, 320), 'BGGR')
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.special import ndtr
+
+from ._atomic import atomic_path
+from .bayer import bin_sites
+from .errors import OutputError, PicamcalError
+from .raw.dng import write_dng
+from .raw.model import PATTERNS, RawImage, site_channels
+from .raw.npz import write_npz
+from .sensors import get_sensor
+
+__all__ = [
+    "REFERENCES",
+    "Optics",
+    "SimulatedCamera",
+    "dust_specks",
+    "expected_response",
+    "ground_truth",
+    "make_camera",
+    "render",
+    "simulate_references",
+    "simulate_run",
+    "simulate_target",
+    "wheel_layout",
+    "wheel_scene",
+]
+
+REFERENCES = ("white", "red", "green", "blue", "black")
+"""Names of the reference illuminations, in the order they are captured."""
+
+_REFERENCE_AMOUNTS = {
+    "white": (1.0, 1.0, 1.0),
+    "red": (1.0, 0.0, 0.0),
+    "green": (0.0, 1.0, 0.0),
+    "blue": (0.0, 0.0, 1.0),
+    "black": (0.0, 0.0, 0.0),
+}
+
+_SEGMENTS = (
+    ("red", (1, 0, 0)),
+    ("yellow", (1, 1, 0)),
+    ("green", (0, 1, 0)),
+    ("cyan", (0, 1, 1)),
+    ("blue", (0, 0, 1)),
+    ("magenta", (1, 0, 1)),
+)
+# Wheel centres as fractions of the frame width and height.
+_WHEELS = (
+    ("centre", 0.5, 0.5),
+    ("top-left", 0.15, 0.15),
+    ("top-right", 0.85, 0.15),
+    ("bottom-left", 0.15, 0.85),
+    ("bottom-right", 0.85, 0.85),
+)
+_WHEEL_RADIUS = 0.11  # of min(width, height)
+_SUPERSAMPLE = 4  # per axis, at wheel edges only
+
+_OFFSETS = range(-2, 3)  # lenslets P = Q - n that can reach photodiode Q
+_PAD = 2
+
+_EXPOSURE_TIME_S = 0.01
+_ANALOGUE_GAIN = 1.0
+
+# Independent random streams of one run (numpy SeedSequence spawn keys).
+_DUST_STREAM = len(REFERENCES)
+_TARGET_STREAM = len(REFERENCES) + 1
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Physical parameters of the simulated pixel stack (lenslet, colour filter, photodiode) and readout.
+
+    The defaults are tuned so that a full-size IMX219 under normally incident white light keeps about
+    half its green and blue response in the corners and red falls off more gently (corner / centre of
+    16-pixel bins: R 0.89, G 0.52, B 0.53; the paper's Figure "example_run"), colours desaturate
+    visibly towards the corners, and every per-bin 3x3 crosstalk matrix (channels x primaries) stays
+    well conditioned (condition number 2.6 to 6.3). ``S[G][R]`` is 0.05 so that a green pixel's
+    response to red light is dominated by crosstalk from its red neighbours and rises towards the
+    corners.
+
+    Attributes
+    ----------
+    spectral_overlap : 3x3 tuple of float
+        ``S[f][l]``: transmission of filter ``f`` (rows R, G, B) for primary ``l`` (columns R, G, B).
+    sensitivity : 3 floats
+        ``T[f]``: quantum efficiency of the R, G, B channels relative to green.
+    spot_sigma : 3 floats
+        Standard deviation in pixels of the focused spot behind an R, G, B filter (red widest: the
+        lenslets focus red light least tightly, giving red its gentler fall-off).
+    photodiode_width : float
+        Edge of the square light-sensitive area of a pixel, in pixels.
+    lenslet_shift_corner : float
+        Shift of the focused spot towards the centre at the sensor corner, in pixels (CRA compensation).
+    stack_height : float
+        Height of the lenslet above the photodiode in pixels: a tilt of the incident light by ``theta``
+        moves the spot by ``stack_height * tan(theta)``. The default makes the compensated chief ray
+        angle at the corner ``atan(lenslet_shift_corner / stack_height)`` about 27 degrees, close to the
+        stock lens's.
+    electrons_per_dn : float
+        Conversion gain at 10 bits (e-/DN); scaled by ``2**(10 - bit_depth)`` for other bit depths.
+    read_noise_dn : float
+        Standard deviation of the read noise at 10 bits in DN; scaled by ``2**(bit_depth - 10)``.
+
+    Examples
+    --------
+    >>> Optics().photodiode_width
+    0.6
+    >>> Optics(lenslet_shift_corner=0.0).lenslet_shift_corner  # no CRA compensation: no vignetting
+    0.0
+    """
+
+    spectral_overlap: tuple[tuple[float, float, float], ...] = (
+        (0.90, 0.10, 0.02),
+        (0.05, 0.85, 0.12),
+        (0.02, 0.12, 0.88),
+    )
+    sensitivity: tuple[float, float, float] = (0.55, 1.0, 0.75)
+    spot_sigma: tuple[float, float, float] = (0.35, 0.30, 0.25)
+    photodiode_width: float = 0.6
+    lenslet_shift_corner: float = 0.5
+    stack_height: float = 1.0
+    electrons_per_dn: float = 4.0
+    read_noise_dn: float = 2.0
+
+    def __post_init__(self) -> None:
+        s = np.asarray(self.spectral_overlap, dtype=float)
+        if s.shape != (3, 3) or np.any(s < 0):
+            raise PicamcalError(f"spectral_overlap must be a 3x3 table of non-negative numbers, got {s.tolist()}")
+        for name in ("sensitivity", "spot_sigma"):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (3,) or np.any(v <= 0):
+                raise PicamcalError(f"{name} must be 3 positive numbers, got {v.tolist()}")
+        if not 0 < self.photodiode_width <= 1:
+            raise PicamcalError(f"photodiode_width must be in (0, 1] pixel, got {self.photodiode_width}")
+        if self.lenslet_shift_corner < 0 or self.stack_height <= 0:
+            raise PicamcalError("lenslet_shift_corner must be >= 0 and stack_height > 0")
+        if self.electrons_per_dn <= 0 or self.read_noise_dn < 0:
+            raise PicamcalError("electrons_per_dn must be > 0 and read_noise_dn >= 0")
+
+    def filtered_light(self) -> np.ndarray:
+        """``T[f] * S[f, l]``: light behind filter ``f`` per unit amount of primary ``l``, shape (3, 3).
+
+        Examples
+        --------
+        >>> Optics().filtered_light()[1].round(2).tolist()
+        [0.05, 0.85, 0.12]
+        """
+        return np.asarray(self.sensitivity, dtype=float)[:, None] * np.asarray(self.spectral_overlap, dtype=float)
+
+
+@dataclass(frozen=True)
+class SimulatedCamera:
+    """A simulated sensor with frozen exposure settings, made by :func:`make_camera`.
+
+    Attributes
+    ----------
+    sensor : str
+        Registry name of the sensor.
+    width, height : int
+        Simulated frame size in pixels.
+    pattern : str
+        Bayer order of the top-left 2x2 block.
+    bit_depth, black_level, white_level : int
+        Digitisation, from the sensor registry.
+    optics : Optics
+        The physical parameters.
+    tilt : (float, float)
+        Tilt of the incident light in degrees about the y and x axes: a positive value moves the
+        vignetting centre towards +x (right) and +y (down).
+    scale : float
+        Illumination per unit scene amount that puts the brightest noiseless white pixel at the exposure
+        chosen in :func:`make_camera`; the same for every frame (frozen camera settings).
+
+    Examples
+    --------
+    >>> camera = make_camera("imx477", size=(64, 48))
+    >>> camera.bit_depth, camera.black_level, camera.electrons_per_dn
+    (12, 256, 1.0)
+    """
+
+    sensor: str
+    width: int
+    height: int
+    pattern: str
+    bit_depth: int
+    black_level: int
+    white_level: int
+    optics: Optics
+    tilt: tuple[float, float]
+    scale: float
+
+    @property
+    def electrons_per_dn(self) -> float:
+        """Conversion gain at this bit depth in electrons per DN."""
+        return self.optics.electrons_per_dn * 2.0 ** (10 - self.bit_depth)
+
+    @property
+    def read_noise_dn(self) -> float:
+        """Read noise standard deviation at this bit depth in DN."""
+        return self.optics.read_noise_dn * 2.0 ** (self.bit_depth - 10)
+
+    @property
+    def vignetting_centre(self) -> tuple[float, float]:
+        """Where the spots are centred on their photodiodes, ``c + t / k`` (x, y in pixels).
+
+        The light a photodiode collects under a uniform scene is an even function of the spot
+        displacement ``d``, so every channel's noiseless white response has its extremum where ``d = 0``
+        (its peak, for any sensible optics). Without compensation (``k = 0``) there is no vignetting and
+        the frame centre is returned.
+        """
+        k, t = _lenslet_geometry(self)
+        c = ((self.width - 1) / 2.0, (self.height - 1) / 2.0)
+        if k == 0:
+            return c
+        return (c[0] + t[0] / k, c[1] + t[1] / k)
+
+
+def _lenslet_geometry(camera: SimulatedCamera) -> tuple[float, tuple[float, float]]:
+    """``k`` (spot shift per pixel of distance from the centre) and ``t`` (tilt displacement, x and y)."""
+    optics = camera.optics
+    corner = math.hypot((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)
+    k = optics.lenslet_shift_corner / corner
+    t = tuple(optics.stack_height * math.tan(math.radians(a)) for a in camera.tilt)
+    return k, t  # type: ignore[return-value]
+
+
+def make_camera(
+    sensor: str = "imx219",
+    *,
+    pattern: str | None = None,
+    size: tuple[int, int] | None = None,
+    tilt: tuple[float, float] = (0.0, 0.0),
+    exposure: float = 0.8,
+    optics: Optics | None = None,
+) -> SimulatedCamera:
+    """Set up a simulated sensor and freeze its exposure on the white reference.
+
+    Parameters
+    ----------
+    sensor : str
+        A sensor of the registry (``"ov5647"``, ``"imx219"``, ``"imx477"``, ``"imx708"``).
+    pattern : str, optional
+        Bayer order (``"RGGB"``, ``"GBRG"``, ``"BGGR"``, ``"GRBG"``); default the sensor's own.
+    size : (int, int), optional
+        Frame ``(width, height)``, both even; default the full sensor. The optics scale with the frame:
+        the spot shift at the corner is ``optics.lenslet_shift_corner`` whatever the size.
+    tilt : (float, float)
+        Angle of incidence in degrees (x, y); positive moves the vignetting centre right and down.
+    exposure : float
+        Fraction of ``white_level - black_level`` reached by the brightest noiseless white pixel.
+    optics : Optics, optional
+        Physical parameters; default ``Optics()``.
+
+    Returns
+    -------
+    SimulatedCamera
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240), tilt=(2.0, 0.0))
+    >>> camera.width, camera.height, camera.pattern, camera.white_level
+    (320, 240, 'BGGR', 1023)
+    >>> round(camera.vignetting_centre[0] - 159.5)  # the tilt moved the vignetting centre right
+    14
+    """
+    spec = get_sensor(sensor)
+    pattern = spec.default_pattern if pattern is None else str(pattern).upper()
+    if pattern not in PATTERNS:
+        raise PicamcalError(f"unknown Bayer pattern {pattern!r} (expected one of {', '.join(PATTERNS)})")
+    width, height = (spec.width, spec.height) if size is None else (int(size[0]), int(size[1]))
+    if width < 4 or height < 4 or width % 2 or height % 2:
+        raise PicamcalError(f"the frame size must be even and at least 4x4 pixels, got {width}x{height}")
+    if not 0 < exposure <= 1:
+        raise PicamcalError(f"exposure must be in (0, 1], got {exposure}")
+    tilt_xy = (float(tilt[0]), float(tilt[1]))
+    if not all(abs(a) < 60 for a in tilt_xy):
+        raise PicamcalError(f"tilt must be within +-60 degrees, got {tilt_xy}")
+    camera = SimulatedCamera(
+        sensor=spec.name,
+        width=width,
+        height=height,
+        pattern=pattern,
+        bit_depth=spec.bit_depth,
+        black_level=spec.black_level,
+        white_level=spec.white_level,
+        optics=Optics() if optics is None else optics,
+        tilt=tilt_xy,
+        scale=1.0,
+    )
+    peak = float(_uniform_response(camera, _REFERENCE_AMOUNTS["white"]).max())
+    return replace(camera, scale=exposure * (camera.white_level - camera.black_level) / peak)
+
+
+def _box_factors(camera: SimulatedCamera, axis: int) -> np.ndarray:
+    """``box(n - d(q); s_f)`` for filter colour f, offset n in -2..2 and pixel q along an axis: (3, 5, N)."""
+    optics = camera.optics
+    k, t = _lenslet_geometry(camera)
+    n_pix = camera.width if axis == 0 else camera.height
+    q = np.arange(n_pix, dtype=np.float64)
+    d = -k * (q - (n_pix - 1) / 2.0) + t[axis]
+    u = np.asarray(_OFFSETS, dtype=np.float64)[:, None] - d[None, :]
+    half = optics.photodiode_width / 2.0
+    sigma = np.asarray(optics.spot_sigma, dtype=np.float64)[:, None, None]
+    return ndtr((u + half) / sigma) - ndtr((u - half) / sigma)
+
+
+def _offsets_of_parity(parity: int) -> list[int]:
+    return [n for n in _OFFSETS if n % 2 == parity]
+
+
+def _source_colour(colours: np.ndarray, sy: int, sx: int, py: int, px: int) -> int:
+    """Filter colour of the lenslets at offsets of parity (py, px) from a photodiode at site (sy, sx)."""
+    return int(colours[2 * ((sy - py) % 2) + (sx - px) % 2])
+
+
+def _uniform_response(camera: SimulatedCamera, amounts: ArrayLike) -> np.ndarray:
+    """Noiseless response (DN, black-subtracted, float64) to a uniform scene, as a sum of outer products."""
+    light = camera.optics.filtered_light() @ np.asarray(amounts, dtype=np.float64) * camera.scale
+    colours = site_channels(camera.pattern)
+    bx, by = _box_factors(camera, 0), _box_factors(camera, 1)
+    out = np.zeros((camera.height, camera.width), dtype=np.float64)
+    for sy in (0, 1):
+        for sx in (0, 1):
+            plane = np.zeros((camera.height // 2, camera.width // 2), dtype=np.float64)
+            for py in (0, 1):
+                for px in (0, 1):
+                    f = _source_colour(colours, sy, sx, py, px)
+                    col = by[f, [n + _PAD for n in _offsets_of_parity(py)], sy::2].sum(axis=0)
+                    row = bx[f, [n + _PAD for n in _offsets_of_parity(px)], sx::2].sum(axis=0)
+                    plane += light[f] * np.outer(col, row)
+            out[sy::2, sx::2] = plane
+    return out
+
+
+def _light_image(camera: SimulatedCamera, scene: np.ndarray) -> np.ndarray:
+    """Filtered light ``L(P)`` behind each lenslet (float32, H x W) for a scene of amounts (H, W, 3)."""
+    coeff = (camera.optics.filtered_light() * camera.scale).astype(np.float32)
+    colours = site_channels(camera.pattern)
+    light = np.empty((camera.height, camera.width), dtype=np.float32)
+    for site, f in enumerate(colours):
+        sy, sx = divmod(site, 2)
+        a = scene[sy::2, sx::2]
+        light[sy::2, sx::2] = coeff[f, 0] * a[..., 0] + coeff[f, 1] * a[..., 1] + coeff[f, 2] * a[..., 2]
+    return light
+
+
+def _spread(camera: SimulatedCamera, light: np.ndarray) -> np.ndarray:
+    """Collect the light of every lenslet on the photodiodes (float32, H x W), per site parity and offset.
+
+    For photodiode site (sy, sx) the lenslets at offsets of parity (py, px) all have the same colour and
+    lie on one parity plane of the padded light image; a horizontal pass over their column offsets and a
+    vertical pass over their row offsets, each weighted by its 1-D box factor, give their contribution.
+    """
+    colours = site_channels(camera.pattern)
+    bx = _box_factors(camera, 0).astype(np.float32)
+    by = _box_factors(camera, 1).astype(np.float32)
+    h2, w2 = camera.height // 2, camera.width // 2
+    padded = np.pad(light, _PAD, mode="reflect")  # reflect keeps the Bayer parity of mirrored pixels
+    planes = [[np.ascontiguousarray(padded[pr::2, pc::2]) for pc in (0, 1)] for pr in (0, 1)]
+    out = np.empty((camera.height, camera.width), dtype=np.float32)
+    rows = np.empty((h2 + _PAD, w2), dtype=np.float32)
+    term = np.empty_like(rows)
+    for sy in (0, 1):
+        for sx in (0, 1):
+            acc = np.zeros((h2, w2), dtype=np.float32)
+            for px in (0, 1):
+                pc = (sx - px) % 2
+                for pr in (0, 1):
+                    py = (sy - pr) % 2
+                    f = _source_colour(colours, sy, sx, py, px)
+                    plane = planes[pr][pc]
+                    rows.fill(0)
+                    for nx in _offsets_of_parity(px):
+                        ox = (sx - nx - pc) // 2 + 1
+                        np.multiply(plane[:, ox : ox + w2], bx[f, nx + _PAD, sx::2], out=term)
+                        rows += term
+                    for ny in _offsets_of_parity(py):
+                        oy = (sy - ny - pr) // 2 + 1
+                        np.multiply(rows[oy : oy + h2], by[f, ny + _PAD, sy::2, None], out=term[:h2])
+                        acc += term[:h2]
+            out[sy::2, sx::2] = acc
+    return out
+
+
+def _scene_amounts(camera: SimulatedCamera, scene: str | ArrayLike) -> tuple[np.ndarray, str]:
+    """The scene as (3,) or (H, W, 3) amounts, and its name for the metadata."""
+    if isinstance(scene, str):
+        if scene not in _REFERENCE_AMOUNTS:
+            raise PicamcalError(f"unknown scene {scene!r} (expected one of {', '.join(REFERENCES)} or an array)")
+        return np.asarray(_REFERENCE_AMOUNTS[scene], dtype=np.float64), scene
+    amounts = np.asarray(scene)
+    if amounts.shape == (3,):
+        amounts = amounts.astype(np.float64)
+        names = [k for k, v in _REFERENCE_AMOUNTS.items() if np.array_equal(amounts, v)]
+        return amounts, names[0] if names else "uniform"
+    if amounts.shape != (camera.height, camera.width, 3):
+        raise PicamcalError(
+            f"a scene must be 3 amounts or an array of shape ({camera.height}, {camera.width}, 3), "
+            f"got shape {amounts.shape}"
+        )
+    return amounts.astype(np.float32, copy=False), "custom"
+
+
+def _dust_attenuation(camera: SimulatedCamera, specks: Sequence[Mapping[str, float]]) -> np.ndarray:
+    """``prod(1 - depth * exp(-r^2 / (2 radius^2)))`` over the specks, float32 (H, W)."""
+    att = np.ones((camera.height, camera.width), dtype=np.float32)
+    for speck in specks:
+        x, y, radius, depth = (float(speck[k]) for k in ("x", "y", "radius", "depth"))
+        reach = 5.0 * radius  # beyond five radii the blob is below 4e-6: negligible
+        x0, x1 = max(0, math.floor(x - reach)), min(camera.width, math.ceil(x + reach) + 1)
+        y0, y1 = max(0, math.floor(y - reach)), min(camera.height, math.ceil(y + reach) + 1)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        dx2 = (np.arange(x0, x1) - x) ** 2
+        dy2 = (np.arange(y0, y1) - y) ** 2
+        blob = np.exp(-(dy2[:, None] + dx2[None, :]) / (2.0 * radius**2))
+        att[y0:y1, x0:x1] *= (1.0 - depth * blob).astype(np.float32)
+    return att
+
+
+def _response(
+    camera: SimulatedCamera, amounts: np.ndarray, specks: Sequence[Mapping[str, float]] | None = None
+) -> np.ndarray:
+    """Noiseless black-subtracted response in DN; float64 for uniform scenes, else float32."""
+    if amounts.ndim == 1 and not specks:
+        return _uniform_response(camera, amounts)
+    if amounts.ndim == 1:
+        amounts = np.broadcast_to(amounts.astype(np.float32), (camera.height, camera.width, 3))
+    light = _light_image(camera, amounts)
+    if specks:
+        light *= _dust_attenuation(camera, specks)
+    return _spread(camera, light)
+
+
+def expected_response(camera: SimulatedCamera, scene: str | ArrayLike) -> np.ndarray:
+    """The noiseless, black-subtracted, unquantised response of the sensor to a scene.
+
+    Parameters
+    ----------
+    camera : SimulatedCamera
+        From :func:`make_camera`.
+    scene : str or array_like
+        A reference name (``"white"``, ``"red"``, ...), 3 amounts of the R, G, B primaries (uniform), or an
+        (H, W, 3) array of amounts per pixel.
+
+    Returns
+    -------
+    ndarray of float64, shape (H, W)
+        Mean DN above black of each pixel (not clipped).
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> white = expected_response(camera, "white")
+    >>> bool(white.max() <= 0.8 * (1023 - 64) + 1e-9)
+    True
+    """
+    amounts, _ = _scene_amounts(camera, scene)
+    return np.asarray(_response(camera, amounts), dtype=np.float64)
+
+
+def dust_specks(
+    camera: SimulatedCamera, count: int, *, rng: np.random.Generator | int | None = None
+) -> list[dict[str, float]]:
+    """Random dark specks of dust for the white reference.
+
+    Each speck multiplies the illumination by ``1 - depth * exp(-r^2 / (2 radius^2))``, with a radius of
+    4 to 25 pixels and a depth of 5 to 30 %, centred inside the frame.
+
+    Parameters
+    ----------
+    camera : SimulatedCamera
+    count : int
+        Number of specks.
+    rng : numpy Generator or int, optional
+        Random source or seed.
+
+    Returns
+    -------
+    list of dict
+        ``{"x", "y", "radius", "depth"}`` per speck (pixels, fraction), JSON-serialisable.
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> speck = dust_specks(camera, 1, rng=0)[0]
+    >>> sorted(speck), 4 <= speck["radius"] <= 25
+    (['depth', 'radius', 'x', 'y'], True)
+    """
+    if count < 0:
+        raise PicamcalError(f"the number of dust specks must be >= 0, got {count}")
+    rng = np.random.default_rng(rng)
+    specks = []
+    for _ in range(int(count)):
+        radius = float(rng.uniform(4.0, 25.0))
+        specks.append(
+            {
+                "x": float(rng.uniform(0, camera.width - 1)),
+                "y": float(rng.uniform(0, camera.height - 1)),
+                "radius": radius,
+                "depth": float(rng.uniform(0.05, 0.30)),
+            }
+        )
+    return specks
+
+
+def render(
+    camera: SimulatedCamera,
+    scene: str | ArrayLike,
+    *,
+    noise: bool = True,
+    rng: np.random.Generator | int | None = None,
+    dust: Sequence[Mapping[str, float]] | None = None,
+) -> RawImage:
+    """Expose the sensor to a scene and read out a raw Bayer frame.
+
+    Parameters
+    ----------
+    camera : SimulatedCamera
+        From :func:`make_camera`.
+    scene : str or array_like
+        A reference name, 3 amounts of the R, G, B primaries (uniform), or an (H, W, 3) array.
+    noise : bool
+        Add shot noise (Poisson in electrons) and Gaussian read noise. The frame is rounded to integers
+        and clipped to ``[0, white_level]`` either way.
+    rng : numpy Generator or int, optional
+        Random source or seed of the noise.
+    dust : sequence of dict, optional
+        Specks ``{"x", "y", "radius", "depth"}`` (see :func:`dust_specks`) darkening the illumination.
+
+    Returns
+    -------
+    RawImage
+        uint16 mosaic with the camera's pattern, black level (4 equal values), white level and bit depth;
+        metadata ``simulated``, ``exposure_time_s``, ``analogue_gain``, ``tilt_deg``, ``scene`` (and
+        ``dust`` when specks were applied).
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> raw = render(camera, "black", rng=0)
+    >>> raw.bayer.dtype.name, raw.metadata["scene"], round(float(raw.bayer.mean()))
+    ('uint16', 'black', 64)
+    """
+    amounts, name = _scene_amounts(camera, scene)
+    signal = _response(camera, amounts, dust)
+    if noise:
+        rng = np.random.default_rng(rng)
+        gain = camera.electrons_per_dn
+        electrons = rng.poisson(np.maximum(signal, 0, dtype=np.float64) * gain)
+        signal = electrons.astype(np.float32) / np.float32(gain)
+        signal += np.float32(camera.read_noise_dn) * rng.standard_normal(signal.shape, dtype=np.float32)
+    frame = np.rint(signal + np.float32(camera.black_level))
+    bayer = np.clip(frame, 0, camera.white_level).astype(np.uint16)
+    metadata: dict[str, Any] = {
+        "simulated": True,
+        "exposure_time_s": _EXPOSURE_TIME_S,
+        "analogue_gain": _ANALOGUE_GAIN,
+        "tilt_deg": list(camera.tilt),
+        "scene": name,
+    }
+    if dust:
+        metadata["dust"] = [dict(speck) for speck in dust]
+    return RawImage(
+        bayer,
+        camera.pattern,
+        (float(camera.black_level),) * 4,
+        camera.white_level,
+        camera.bit_depth,
+        camera.sensor,
+        metadata,
+    )
+
+
+def wheel_layout(width: int, height: int) -> dict[str, Any]:
+    """Where the colour wheels of the test target are: one in the centre and one near each corner.
+
+    Wheel centres are at 15 %, 50 % and 85 % of the width and height (pixel centres at integer
+    coordinates, so 50 % is ``(W - 1) / 2``); the radius is ``0.11 * min(width, height)``. Segment ``k``
+    covers angles ``[60 k, 60 k + 60)`` degrees counter-clockwise from +x as seen on screen (y down).
+
+    Returns
+    -------
+    dict
+        ``{"width", "height", "segments": [{"name", "colour", "start_deg", "end_deg"}] * 6,
+        "wheels": [{"name", "x", "y", "radius"}] * 5}``, JSON-serialisable.
+
+    Examples
+    --------
+    >>> layout = wheel_layout(320, 240)
+    >>> [s["name"] for s in layout["segments"]]
+    ['red', 'yellow', 'green', 'cyan', 'blue', 'magenta']
+    >>> layout["wheels"][1]
+    {'name': 'top-left', 'x': 47.5, 'y': 35.5, 'radius': 26.4}
+    """
+    radius = round(_WHEEL_RADIUS * min(width, height), 6)
+    return {
+        "width": int(width),
+        "height": int(height),
+        "segments": [
+            {"name": name, "colour": list(colour), "start_deg": 60 * k, "end_deg": 60 * (k + 1)}
+            for k, (name, colour) in enumerate(_SEGMENTS)
+        ],
+        "wheels": [
+            {"name": name, "x": round(fx * width - 0.5, 6), "y": round(fy * height - 0.5, 6), "radius": radius}
+            for name, fx, fy in _WHEELS
+        ],
+    }
+
+
+def _wheel_colour(dx: np.ndarray, dy: np.ndarray, radius: float, segments: list[dict[str, Any]]) -> np.ndarray:
+    """Amounts (..., 3) at offsets (dx, dy) from a wheel centre: a segment's colour inside, white outside."""
+    angle = np.degrees(np.arctan2(-dy, dx)) % 360.0
+    inside = np.hypot(dx, dy) <= radius
+    out = np.ones((*dx.shape, 3), dtype=np.float32)
+    for seg in segments:
+        mask = inside & (angle >= seg["start_deg"]) & (angle < seg["end_deg"])
+        out[mask] = seg["colour"]
+    return out
+
+
+def wheel_scene(layout: Mapping[str, Any]) -> np.ndarray:
+    """Render the colour-wheel test target as amounts of the R, G, B primaries.
+
+    Pixels on a segment or rim boundary are 4x4 supersampled (anti-aliased); the rest take the colour
+    at their centre.
+
+    Parameters
+    ----------
+    layout : dict
+        From :func:`wheel_layout`.
+
+    Returns
+    -------
+    ndarray of float32, shape (height, width, 3)
+
+    Examples
+    --------
+    >>> scene = wheel_scene(wheel_layout(320, 240))
+    >>> scene.shape, scene[115, 170].tolist(), scene[0, 0].tolist()  # red segment, white background
+    ((240, 320, 3), [1.0, 0.0, 0.0], [1.0, 1.0, 1.0])
+    """
+    width, height = int(layout["width"]), int(layout["height"])
+    segments = list(layout["segments"])
+    boundaries = np.radians([float(seg["start_deg"]) for seg in segments])
+    scene = np.ones((height, width, 3), dtype=np.float32)
+    sub = (np.arange(_SUPERSAMPLE) + 0.5) / _SUPERSAMPLE - 0.5
+    near = 0.75  # beyond half a pixel diagonal (0.71) a boundary cannot cross the pixel
+    for wheel in layout["wheels"]:
+        cx, cy, radius = float(wheel["x"]), float(wheel["y"]), float(wheel["radius"])
+        x0, x1 = max(0, math.floor(cx - radius - 1)), min(width, math.ceil(cx + radius + 2))
+        y0, y1 = max(0, math.floor(cy - radius - 1)), min(height, math.ceil(cy + radius + 2))
+        if x0 >= x1 or y0 >= y1:
+            continue
+        dx = np.arange(x0, x1, dtype=np.float64)[None, :] - cx
+        dy = np.arange(y0, y1, dtype=np.float64)[:, None] - cy
+        dx, dy = np.broadcast_arrays(dx, dy)
+        block = _wheel_colour(dx, dy, radius, segments)
+        rho = np.hypot(dx, dy)
+        # Distance to each boundary ray (angle b, on screen y down): perpendicular distance where the
+        # point projects onto the ray, else the distance to the wheel centre.
+        along = dx[..., None] * np.cos(boundaries) - dy[..., None] * np.sin(boundaries)
+        across = np.abs(dx[..., None] * np.sin(boundaries) + dy[..., None] * np.cos(boundaries))
+        ray = np.where(along > 0, across, rho[..., None]).min(axis=-1)
+        edge = (np.abs(rho - radius) < near) | ((ray < near) & (rho < radius + near))
+        ey, ex = np.nonzero(edge)
+        if ey.size:
+            sdx = dx[ey, ex][:, None, None] + sub[None, None, :]
+            sdy = dy[ey, ex][:, None, None] + sub[None, :, None]
+            sdx, sdy = np.broadcast_arrays(sdx, sdy)
+            block[ey, ex] = _wheel_colour(sdx, sdy, radius, segments).mean(axis=(1, 2))
+        scene[y0:y1, x0:x1] = block
+    return scene
+
+
+def _stream(seed: int, index: int) -> np.random.Generator:
+    """Independent random stream ``index`` of a run with this seed."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(index,)))
+
+
+def simulate_references(
+    camera: SimulatedCamera, *, noise: bool = True, seed: int = 0, dust: int = 0
+) -> dict[str, RawImage]:
+    """Render the five reference illuminations: white, red, green, blue (the LEDs) and black (LED off).
+
+    Parameters
+    ----------
+    camera : SimulatedCamera
+    noise : bool
+        Add shot and read noise.
+    seed : int
+        Seed of the noise and of the dust positions (each frame has its own stream).
+    dust : int
+        Number of dust specks on the white reference only (listed in its ``metadata["dust"]``).
+
+    Returns
+    -------
+    dict of str to RawImage
+        Keyed by :data:`REFERENCES`, in that order.
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> refs = simulate_references(camera, noise=False, dust=2)
+    >>> list(refs), len(refs["white"].metadata["dust"])
+    (['white', 'red', 'green', 'blue', 'black'], 2)
+    """
+    specks = dust_specks(camera, dust, rng=_stream(seed, _DUST_STREAM))
+    return {
+        name: render(camera, name, noise=noise, rng=_stream(seed, i), dust=specks if name == "white" else None)
+        for i, name in enumerate(REFERENCES)
+    }
+
+
+def simulate_target(camera: SimulatedCamera, *, noise: bool = True, seed: int = 0) -> tuple[RawImage, dict]:
+    """Render the colour-wheel test target with the same frozen settings as the references.
+
+    Returns
+    -------
+    RawImage
+        The frame, ``metadata["scene"] == "target"``.
+    dict
+        Its :func:`wheel_layout`.
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> raw, layout = simulate_target(camera, seed=3)
+    >>> raw.metadata["scene"], len(layout["wheels"])
+    ('target', 5)
+    """
+    layout = wheel_layout(camera.width, camera.height)
+    raw = render(camera, wheel_scene(layout), noise=noise, rng=_stream(seed, _TARGET_STREAM))
+    raw.metadata["scene"] = "target"
+    return raw, layout
+
+
+def ground_truth(camera: SimulatedCamera, *, bin_size: int = 16) -> dict[str, np.ndarray]:
+    """The noiseless per-bin response of the camera, what a calibration should recover.
+
+    Parameters
+    ----------
+    camera : SimulatedCamera
+    bin_size : int
+        Even bin edge in sensor pixels, as :func:`picamcal.bayer.bin_sites`.
+
+    Returns
+    -------
+    dict of str to ndarray
+        ``"site_response"`` (4, nby, nbx, 4): bin means of the black-subtracted white, red, green and blue
+        references per 2x2 site (row-major), without dust or quantisation;
+        ``"site_mixing"`` (nby, nbx, 4, 3): DN per unit amount of each primary, per bin and site, so
+        ``site_response[0] == site_mixing.sum(-1)`` and ``site_response[1 + l] == site_mixing[..., l]``;
+        ``"vignetting_centre"`` (2,): x, y where the white response peaks (``camera.vignetting_centre``).
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> truth = ground_truth(camera, bin_size=16)
+    >>> truth["site_response"].shape, truth["site_mixing"].shape
+    ((4, 15, 20, 4), (15, 20, 4, 3))
+    """
+    mixing = np.stack(
+        [bin_sites(_uniform_response(camera, primary), bin_size) for primary in np.eye(3)],
+        axis=-1,
+    )
+    response = np.stack([mixing.sum(axis=-1), mixing[..., 0], mixing[..., 1], mixing[..., 2]])
+    return {
+        "site_response": response,
+        "site_mixing": mixing,
+        "vignetting_centre": np.array(camera.vignetting_centre, dtype=np.float64),
+    }
+
+
+def _write_json(path: Path, record: Mapping[str, Any], overwrite: bool) -> None:
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+
+
+def simulate_run(
+    out_dir: str | os.PathLike[str],
+    sensor: str = "imx219",
+    *,
+    pattern: str | None = None,
+    size: tuple[int, int] | None = None,
+    tilt: tuple[float, float] = (0.0, 0.0),
+    seed: int = 0,
+    noise: bool = True,
+    dust: int = 0,
+    bin_size: int = 16,
+    fmt: str = "dng",
+    overwrite: bool = False,
+) -> dict[str, Path]:
+    """Simulate a whole calibration run and write it to a directory, with its ground truth.
+
+    Writes ``white``, ``red``, ``green``, ``blue``, ``black`` and ``target`` raw files (``.dng``, or
+    picamcal ``.npz`` with ``fmt="npz"``), ``layout.json`` (:func:`wheel_layout`), ``truth.npz``
+    (:func:`ground_truth` arrays and ``bin_size``) and ``truth.json`` (sensor, pattern, size, tilt, seed,
+    optics, exposure scale, dust specks, layout). Every file is written atomically.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Directory, created if missing.
+    sensor, pattern, size, tilt
+        As :func:`make_camera`.
+    seed : int
+        Seed of the noise and dust.
+    noise : bool
+        Add shot and read noise.
+    dust : int
+        Number of dust specks on the white reference.
+    bin_size : int
+        Bin size of the ground truth.
+    fmt : {"dng", "npz"}
+        Raw file format.
+    overwrite : bool
+        Replace existing files; otherwise nothing is written if any output exists.
+
+    Returns
+    -------
+    dict of str to Path
+        The written files, keyed ``white`` ... ``black``, ``target``, ``layout``, ``truth_npz``, ``truth_json``.
+
+    Raises
+    ------
+    OutputError
+        An output file exists already and ``overwrite`` is False, or the directory is not writable.
+
+    Examples
+    --------
+    >>> paths = simulate_run("run1", size=(320, 240), dust=3)  # doctest: +SKIP
+    >>> paths["white"], paths["truth_json"]  # doctest: +SKIP
+    (PosixPath('run1/white.dng'), PosixPath('run1/truth.json'))
+    """
+    writers = {"dng": write_dng, "npz": write_npz}
+    if fmt not in writers:
+        raise PicamcalError(f"unknown raw format {fmt!r} (expected 'dng' or 'npz')")
+    out = Path(out_dir)
+    paths = {name: out / f"{name}.{fmt}" for name in (*REFERENCES, "target")}
+    paths.update(layout=out / "layout.json", truth_npz=out / "truth.npz", truth_json=out / "truth.json")
+    if not overwrite:
+        for path in paths.values():
+            if path.exists():
+                raise OutputError("exists already (use --overwrite to replace it)", path)
+    camera = make_camera(sensor, pattern=pattern, size=size, tilt=tilt)
+    truth = ground_truth(camera, bin_size=bin_size)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create the directory: {exc.strerror or exc}", out) from exc
+
+    frames = simulate_references(camera, noise=noise, seed=seed, dust=dust)
+    target, layout = simulate_target(camera, noise=noise, seed=seed)
+    frames["target"] = target
+    for name, raw in frames.items():
+        writers[fmt](paths[name], raw, overwrite=overwrite)
+    _write_json(paths["layout"], layout, overwrite)
+    with atomic_path(paths["truth_npz"], overwrite=overwrite) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **truth, bin_size=np.array(bin_size))
+    record = {
+        "sensor": camera.sensor,
+        "pattern": camera.pattern,
+        "size": [camera.width, camera.height],
+        "tilt": list(camera.tilt),
+        "seed": int(seed),
+        "noise": bool(noise),
+        "bin_size": int(bin_size),
+        "bit_depth": camera.bit_depth,
+        "black_level": camera.black_level,
+        "white_level": camera.white_level,
+        "scale": camera.scale,
+        "optics": asdict(camera.optics),
+        "vignetting_centre": list(camera.vignetting_centre),
+        "dust": frames["white"].metadata.get("dust", []),
+        "layout": layout,
+        "files": {name: path.name for name, path in paths.items()},
+    }
+    _write_json(paths["truth_json"], record, overwrite)
+    return paths

@@ -1,0 +1,97 @@
+"""Raw formats: DNG written by picamcal read back bit-exactly by LibRaw; the npz container; bad files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rawpy
+
+from picamcal import RawFormatError, read_raw
+from picamcal.raw import PATTERNS, RawImage, write_dng, write_npz
+
+
+def _random_raw(pattern: str, bits: int = 10) -> RawImage:
+    rng = np.random.default_rng(1)
+    bayer = rng.integers(0, 2**bits, size=(48, 64), dtype=np.uint16)
+    meta = {"exposure_time_s": 0.02, "analogue_gain": 2.0}
+    return RawImage(bayer, pattern, (64.0, 65.0, 66.0, 67.0), 2**bits - 1, bits, "imx219", meta)
+
+
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_dng_round_trip_is_bit_exact_through_libraw(tmp_path, pattern):
+    raw = _random_raw(pattern)
+    path = write_dng(tmp_path / "x.dng", raw)
+    with rawpy.imread(str(path)) as rp:  # LibRaw directly, independent of our reader
+        np.testing.assert_array_equal(rp.raw_image_visible, raw.bayer)
+        desc = rp.color_desc.decode()
+        assert "".join(desc[i] for i in rp.raw_pattern.ravel()) == pattern
+    back = read_raw(path)
+    np.testing.assert_array_equal(back.bayer, raw.bayer)
+    assert back.pattern == pattern
+    assert back.black_level == raw.black_level  # per site, in the file's site order
+    assert (back.white_level, back.bit_depth, back.sensor) == (1023, 10, "imx219")
+    assert back.metadata["format"] == "dng"
+    assert back.metadata["exposure_time_s"] == pytest.approx(0.02)
+    assert back.metadata["iso"] == 200
+
+
+def test_dng_12_bit(tmp_path):
+    raw = _random_raw("RGGB", bits=12)
+    back = read_raw(write_dng(tmp_path / "x.dng", raw))
+    np.testing.assert_array_equal(back.bayer, raw.bayer)
+    assert (back.white_level, back.bit_depth) == (4095, 12)
+
+
+def test_npz_round_trip(tmp_path):
+    raw = _random_raw("GRBG")
+    back = read_raw(write_npz(tmp_path / "x.npz", raw))
+    np.testing.assert_array_equal(back.bayer, raw.bayer)
+    assert (back.pattern, back.black_level, back.white_level) == ("GRBG", raw.black_level, 1023)
+    assert back.metadata["format"] == "npz" and back.metadata["analogue_gain"] == 2.0
+
+
+def test_black_subtracted_uses_each_site_level():
+    raw = RawImage(np.full((4, 4), 100, np.uint16), "RGGB", (10, 20, 30, 40), 1023, 10)
+    assert raw.black_subtracted()[:2, :2].tolist() == [[90.0, 80.0], [70.0, 60.0]]
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"", "empty file"),
+        (b"\x89PNG\r\n\x1a\n" + b"\0" * 32, "a PNG image, not a raw image"),
+        (b"hello world, not an image", "not a raw image format"),
+        (b"II*\x00" + b"\0" * 64, "corrupt TIFF/DNG structure"),
+        (b"PK\x03\x04garbage", "corrupt picamcal raw file"),
+    ],
+)
+def test_bad_files_raise_one_clear_error_naming_the_file(tmp_path, content, message):
+    path = tmp_path / "bad.dng"
+    path.write_bytes(content)
+    with pytest.raises(RawFormatError, match=message) as info:
+        read_raw(path)
+    assert str(info.value).startswith(str(path))
+    assert "\n" not in str(info.value)
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(RawFormatError, match="no such file"):
+        read_raw(tmp_path / "nope.dng")
+    with pytest.raises(RawFormatError, match="is a directory"):
+        read_raw(tmp_path)
+
+
+def test_npz_without_bayer_is_refused(tmp_path):
+    path = tmp_path / "other.npz"
+    np.savez(path, something=np.zeros(3))
+    with pytest.raises(RawFormatError, match="not a picamcal raw image"):
+        read_raw(path)
+
+
+def test_raw_image_validates_its_fields():
+    with pytest.raises(RawFormatError, match="unknown Bayer pattern"):
+        RawImage(np.zeros((4, 4), np.uint16), "RGBG", (0,) * 4, 1023, 10)
+    with pytest.raises(RawFormatError, match="even width and height"):
+        RawImage(np.zeros((3, 4), np.uint16), "RGGB", (0,) * 4, 1023, 10)
+    with pytest.raises(RawFormatError, match="uint16"):
+        RawImage(np.zeros((4, 4), np.float32), "RGGB", (0,) * 4, 1023, 10)
