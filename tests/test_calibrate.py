@@ -22,9 +22,16 @@ def test_invert_3x3_matches_numpy_on_random_stacks():
     np.testing.assert_allclose(det, np.linalg.det(m), rtol=1e-10)
 
 
-def test_invert_3x3_singular_gives_nan():
+def test_invert_3x3_keeps_float32():
+    m = (np.random.default_rng(1).normal(size=(100, 3, 3)) + 3 * np.eye(3)).astype(np.float32)
+    inverse, _ = invert_3x3(m)
+    assert inverse.dtype == np.float32
+    np.testing.assert_allclose(inverse, np.linalg.inv(m.astype(np.float64)), rtol=1e-4, atol=1e-5)
+
+
+def test_invert_3x3_singular_gives_non_finite():
     inverse, det = invert_3x3(np.ones((3, 3)))
-    assert det == 0 and np.isnan(inverse).all()
+    assert det == 0 and not np.isfinite(inverse).any()
 
 
 @given(st.lists(st.floats(-10, 10, allow_nan=False), min_size=9, max_size=9))
