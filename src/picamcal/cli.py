@@ -11,6 +11,7 @@ import warnings
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -27,6 +28,38 @@ app = typer.Typer(
 )
 console = Console(stderr=True)
 MODE_HELP = "balance (colour balance only), flat (vignetting), centre (unmix to the centre's colours), pure"
+PatternOption = Annotated[
+    str | None, typer.Option("--pattern", help="Override the files' Bayer order (RGGB, GBRG, BGGR, GRBG).")
+]
+BlackOption = Annotated[
+    str | None, typer.Option("--black-level", help="Override the files' black level: one value or four (DN).")
+]
+
+
+def _black_level(text: str | None) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        raise typer.BadParameter(f"{text!r} is not one number or four", param_hint="--black-level") from None
+    if len(values) not in (1, 4):
+        raise typer.BadParameter("give one value or four (one per 2x2 site)", param_hint="--black-level")
+    return values
+
+
+def _reader(pattern: str | None, black_level: str | None):
+    """A read_raw with the command's overrides applied."""
+    from .raw import read_raw
+
+    levels = _black_level(black_level)
+    if pattern is not None:
+        pattern = pattern.upper()
+
+    def read(path: Path):
+        return read_raw(path, pattern=pattern, black_level=levels)
+
+    return read
 
 
 def _progress() -> Progress:
@@ -78,6 +111,8 @@ def calibrate_cmd(
     black: Annotated[Path | None, typer.Option(help="Dark frame (optional).")] = None,
     bin_size: Annotated[int, typer.Option(help="Bin edge in sensor pixels (even).")] = 16,
     smoothing: Annotated[float, typer.Option(help="Gaussian smoothing of the fields, in bins (0 = none).")] = 0.0,
+    pattern: PatternOption = None,
+    black_level: BlackOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Measure the flat field and colour-unmixing field from reference images."""
@@ -94,8 +129,9 @@ def calibrate_cmd(
         raise OutputError("exists already (use --overwrite to replace it)", out)
     if any(_same_file(out, p) for p in refs.values()):
         raise OutputError("is one of the input files; choose another --out", out)
+    read = _reader(pattern, black_level)
     with console.status("calibrating"):
-        cal = calibrate(**refs, bin_size=bin_size, smoothing=smoothing)
+        cal = calibrate(**{role: read(path) for role, path in refs.items()}, bin_size=bin_size, smoothing=smoothing)
         cal.save(out, overwrite=overwrite)
     console.print(
         f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
@@ -111,17 +147,35 @@ def correct_cmd(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder for <stem>.tiff files.")],
     mode: Annotated[str, typer.Option(help=MODE_HELP)] = "centre",
     binned: Annotated[bool, typer.Option(help="Write the bin-resolution image instead of full resolution.")] = False,
+    processed: Annotated[
+        bool, typer.Option(help="The images are processed (JPEG/PNG/TIFF from the camera's ISP), not raw.")
+    ] = False,
+    input_encoding: Annotated[
+        str, typer.Option(help="With --processed: srgb, linear, gamma:G or tuning:FILE (its rpi.contrast curve).")
+    ] = "srgb",
+    white_image: Annotated[
+        Path | None, typer.Option("--white", help="With --processed: a processed white reference (residual flat).")
+    ] = None,
+    pattern: PatternOption = None,
+    black_level: BlackOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace existing output files.")] = False,
 ) -> None:
-    """Correct raw images; write float32 linear RGB TIFF files (white = 1.0)."""
+    """Correct raw (or, with --processed, ISP-processed) images; write float32 linear RGB TIFF files."""
     from .calibration import MODES, load_calibration
-    from .correct import correct
+    from .correct import correct, correct_processed
     from .output import write_rgb_tiff
-    from .raw import read_raw
+    from .raw.processed import linearise, read_processed
 
     if mode not in MODES:
         raise typer.BadParameter(f"{mode!r} is not one of {', '.join(MODES)}", param_hint="--mode")
+    if white_image is not None and not processed:
+        raise typer.BadParameter("--white goes with --processed (raw images are flat-fielded by the calibration)")
+    if processed and binned:
+        raise typer.BadParameter("--binned is for raw images")
+    linearise(np.zeros(1), input_encoding)  # a bad encoding fails here, before any work
     cal = load_calibration(calibration)
+    read = _reader(pattern, black_level)
+    white = read_processed(white_image, input_encoding) if white_image is not None else None
     targets = [out / f"{image.stem}.tiff" for image in images]
     stems = [t.name for t in targets]
     for image, target in zip(images, targets, strict=True):
@@ -135,9 +189,13 @@ def correct_cmd(
     with _progress() as progress:
         task = progress.add_task(f"correcting ({mode})", total=len(images))
         for image, target in zip(images, targets, strict=True):
-            raw = read_raw(image)
-            rgb = correct(raw, cal, mode=mode, binned=binned)
+            if processed:
+                rgb = correct_processed(read_processed(image, input_encoding), cal, mode, white=white)
+            else:
+                rgb = correct(read(image), cal, mode=mode, binned=binned)
             info = {"source": image.name, "calibration": calibration.name, "mode": mode, "binned": binned}
+            if processed:
+                info["input_encoding"] = input_encoding
             write_rgb_tiff(target, rgb, info, overwrite=overwrite)
             progress.advance(task)
     console.print(f"wrote {len(images)} image(s) to {out}")
@@ -185,6 +243,67 @@ def simulate_cmd(
     console.print(f"wrote {len(paths)} files to {out}")
 
 
+@app.command("inspect")
+def inspect_cmd(
+    files: Annotated[list[Path], typer.Argument(help="Raw or processed image files.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    pattern: PatternOption = None,
+    black_level: BlackOption = None,
+) -> None:
+    """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong."""
+    import json
+    import warnings
+
+    from .inspect import describe
+
+    read = _reader(pattern, black_level)
+    records = []
+    for path in files:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            record = describe(path, read)
+        record["warnings"] = [
+            str(w.message).removeprefix(f"{path}: ") for w in caught if issubclass(w.category, PicamcalWarning)
+        ]
+        records.append(record)
+    if as_json:
+        print(json.dumps(records, indent=2))
+        return
+    table = Table()
+    for heading in ("file", "format", "sensor", "size", "pattern", "bits", "black", "white", "exposure", "gain"):
+        table.add_column(heading)
+    for r in records:
+        table.add_row(
+            Path(r["path"]).name,
+            r["format"],
+            r.get("sensor") or "?",
+            f"{r['width']}x{r['height']}",
+            r.get("pattern", "-"),
+            str(r["bit_depth"]),
+            _levels(r.get("black_level")),
+            str(r.get("white_level", "-")),
+            f"{1e3 * r['exposure_time_s']:.3g} ms" if r.get("exposure_time_s") else "-",
+            f"{r['analogue_gain']:.3g}" if r.get("analogue_gain") else "-",
+        )
+    stdout = _stdout()
+    stdout.print(table)
+    for r in records:
+        for warning in r["warnings"]:
+            stdout.print(f"{Path(r['path']).name}: {warning}", style="yellow", markup=False)
+
+
+def _stdout() -> Console:
+    """Standard output; not squeezed to 80 columns when it is a file or a pipe."""
+    console = Console()
+    return console if console.is_terminal else Console(width=200)
+
+
+def _levels(levels: list[float] | None) -> str:
+    if not levels:
+        return "-"
+    return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
+
+
 @app.command("demo")
 def demo_cmd(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("picamcal-demo"),
@@ -227,7 +346,7 @@ def demo_cmd(
             f"{row['corner_saturation_ratio']:.2f}",
             f"{row['worst_noise_penalty']:.2f}",
         )
-    stdout = Console()
+    stdout = _stdout()
     stdout.print(table)
     for mode, meaning in figures["mode_meaning"].items():
         stdout.print(f"  {mode}: {meaning}")

@@ -23,8 +23,10 @@ import numpy as np
 
 from .bayer import bin_centres, bin_sites, sites_to_channels
 from .calibration import MODES, Calibration
+from .errors import PicamcalError
 from .interpolate import interpolation_matrix, upsample
 from .raw.model import RawImage
+from .raw.processed import ProcessedImage
 
 #: Rows per block when applying the matrix field, to bound memory (9 float32 planes per block).
 _ROW_BLOCK = 256
@@ -122,4 +124,99 @@ def correct(raw: RawImage, calibration: Calibration, mode: str = "centre", binne
     del mosaic
     if matrices is not None:
         apply_matrix_field(rgb, matrices, calibration.bin_centres)
+    return rgb
+
+
+def _block_means(rgb: np.ndarray, block: int) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Per-channel means over square blocks (the last may be partial) and the blocks' centres."""
+    ry = np.arange(0, rgb.shape[0], block)
+    rx = np.arange(0, rgb.shape[1], block)
+    sums = np.add.reduceat(np.add.reduceat(rgb, ry, axis=0, dtype=np.float64), rx, axis=1)
+    counts = np.outer(np.diff(np.append(ry, rgb.shape[0])), np.diff(np.append(rx, rgb.shape[1])))
+    return sums / counts[..., None], (bin_centres(rgb.shape[0], block), bin_centres(rgb.shape[1], block))
+
+
+def correct_processed(
+    image: ProcessedImage | np.ndarray,
+    calibration: Calibration,
+    mode: str = "centre",
+    *,
+    white: ProcessedImage | np.ndarray | None = None,
+    ccm: np.ndarray | None = None,
+    crop: tuple[int, int, int, int] | None = None,
+) -> np.ndarray:
+    """Correct a processed (ISP output) image: apply only what the camera's pipeline did not.
+
+    The ISP has already subtracted black, applied its lens shading table and colour gains, and
+    demosaiced. If the table loaded into the camera came from this calibration (``picamcal
+    export-tuning``) the image is already flat; what remains is the unmixing ``U`` (``centre``) or
+    ``Cx U`` (``pure``), applied per pixel in the camera's colour space. Otherwise give a processed
+    ``white`` reference taken through the same pipeline, and the remaining flat field is measured from
+    it and divided out first (then its white maps to 1.0). A colour correction matrix that the ISP
+    applied after the gains (``ccm``, as in the tuning file's ``rpi.ccm``) is undone before unmixing
+    and re-applied after it.
+
+    Parameters
+    ----------
+    image : ProcessedImage or ndarray (H, W, 3)
+        Linear RGB (see :func:`picamcal.raw.processed.read_processed` for undoing the tone curve).
+    calibration : Calibration
+    mode : {"centre", "pure", "flat", "balance"}
+        ``flat`` and ``balance`` apply only the residual flat field (nothing without ``white``).
+    white : ProcessedImage or ndarray (H, W, 3), optional
+        A processed image of the white reference, at the same size and settings.
+    ccm : ndarray (3, 3), optional
+        The colour matrix the ISP applied (camera RGB -> output RGB).
+    crop : (x, y, width, height), optional
+        The part of the sensor, in sensor pixels, that the image shows; default the whole sensor
+        (the image may be scaled, as the ISP's output usually is).
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, 3)
+
+    Examples
+    --------
+    >>> from picamcal.raw.processed import read_processed
+    >>> rgb = correct_processed(read_processed("sample.jpg"), cal, "centre")  # doctest: +SKIP
+    """
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}: choose one of {', '.join(MODES)}")
+    rgb = np.array(image.rgb if isinstance(image, ProcessedImage) else image, dtype=np.float32)
+    source = image.metadata.get("path", "<image>") if isinstance(image, ProcessedImage) else "<image>"
+    if rgb.ndim != 3 or rgb.shape[-1] != 3:
+        raise PicamcalError(f"expected an RGB image, got shape {rgb.shape}", source)
+    height, width = rgb.shape[:2]
+    x0, y0, crop_w, crop_h = crop if crop is not None else (0, 0, calibration.width, calibration.height)
+    if x0 < 0 or y0 < 0 or x0 + crop_w > calibration.width or y0 + crop_h > calibration.height:
+        raise PicamcalError(f"crop {crop} lies outside the {calibration.width}x{calibration.height} sensor")
+    scale_x, scale_y = crop_w / width, crop_h / height
+    if abs(scale_x / scale_y - 1) > 0.02:
+        raise PicamcalError(
+            f"image is {width}x{height} but shows a {crop_w}x{crop_h} sensor area: the aspect ratios differ; "
+            "give the sensor crop it was taken with",
+            source,
+        )
+    if ccm is not None:
+        ccm = np.asarray(ccm, dtype=np.float64).reshape(3, 3)
+        rgb = np.einsum("pq,yxq->yxp", np.linalg.inv(ccm).astype(np.float32), rgb)
+    if white is not None:
+        w = np.asarray(white.rgb if isinstance(white, ProcessedImage) else white, dtype=np.float32)
+        if w.shape != rgb.shape:
+            raise PicamcalError(f"white reference is {w.shape[1]}x{w.shape[0]}, the image {width}x{height}", source)
+        if ccm is not None:
+            w = np.einsum("pq,yxq->yxp", np.linalg.inv(ccm).astype(np.float32), w)
+        means, centres = _block_means(w, max(2, round(calibration.bin_size / scale_x)))
+        if np.any(means <= 0):
+            raise PicamcalError("the processed white reference has blocks with no light", source)
+        ay = interpolation_matrix(centres[0], np.arange(height))
+        ax = interpolation_matrix(centres[1], np.arange(width))
+        rgb /= upsample(means, ay, ax).astype(np.float32)
+    matrices = calibration.matrices(mode)
+    if matrices is not None:
+        cy, cx = calibration.bin_centres
+        image_centres = ((cy - y0 + 0.5) / scale_y - 0.5, (cx - x0 + 0.5) / scale_x - 0.5)
+        apply_matrix_field(rgb, matrices, image_centres)
+    if ccm is not None:
+        rgb = np.einsum("pq,yxq->yxp", ccm.astype(np.float32), rgb)
     return rgb

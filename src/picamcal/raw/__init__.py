@@ -7,12 +7,15 @@ byte layout.
 from __future__ import annotations
 
 import os
+import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
-from ..errors import RawFormatError
+from ..errors import PicamcalWarning, RawFormatError
 from .dng import is_dng, read_dng, write_dng
 from .model import PATTERNS, RawImage, site_channels
 from .npz import read_npz, write_npz
+from .verify import check_metadata
 
 __all__ = ["PATTERNS", "RawImage", "read_dng", "read_npz", "read_raw", "site_channels", "write_dng", "write_npz"]
 
@@ -24,16 +27,32 @@ _SIGNATURES = {
 }
 
 
-def read_raw(path: str | os.PathLike[str]) -> RawImage:
+def read_raw(
+    path: str | os.PathLike[str],
+    *,
+    pattern: str | None = None,
+    black_level: float | Sequence[float] | None = None,
+    verify: bool = True,
+) -> RawImage:
     """Read a raw Bayer image from a file, whatever its format.
 
     The format is recognised from the file's first bytes, not its name. Supported: DNG (read by
     LibRaw through rawpy) and picamcal's own raw ``.npz``.
 
+    What the file declares is checked against its data (:func:`picamcal.raw.verify.check_metadata`):
+    a Bayer order whose greens sit on the wrong diagonal, or a missing black level, gives a
+    ``PicamcalWarning`` saying what to override.
+
     Parameters
     ----------
     path : path-like
         The raw file.
+    pattern : str, optional
+        Override the file's Bayer order (``RGGB``, ``GBRG``, ``BGGR``, ``GRBG``).
+    black_level : float or 4 floats, optional
+        Override the file's black level (DN; one value, or one per 2x2 site row-major).
+    verify : bool
+        Check the declared metadata against the data and warn.
 
     Returns
     -------
@@ -65,6 +84,16 @@ def read_raw(path: str | os.PathLike[str]) -> RawImage:
         raise RawFormatError(f"cannot read: {exc.strerror or exc}", path) from exc
     if not head:
         raise RawFormatError("empty file (0 bytes)", path)
+    raw = _read_by_signature(path, head)
+    if pattern is not None or black_level is not None:
+        raw = override(raw, pattern=pattern, black_level=black_level)
+    if verify:
+        for problem in check_metadata(raw):
+            warnings.warn(f"{path}: {problem}", PicamcalWarning, stacklevel=2)
+    return raw
+
+
+def _read_by_signature(path: Path, head: bytes) -> RawImage:
     if is_dng(head):
         return read_dng(path)
     if head.startswith(b"PK"):
@@ -73,3 +102,32 @@ def read_raw(path: str | os.PathLike[str]) -> RawImage:
         if head.startswith(signature):
             raise RawFormatError(f"{what}, not a raw image", path)
     raise RawFormatError("not a raw image format picamcal reads (DNG or picamcal .npz)", path)
+
+
+def override(
+    raw: RawImage, *, pattern: str | None = None, black_level: float | Sequence[float] | None = None
+) -> RawImage:
+    """A copy of ``raw`` with its Bayer order or black level replaced; the declared values stay in the metadata.
+
+    Examples
+    --------
+    >>> override(raw, pattern="BGGR", black_level=64).pattern  # doctest: +SKIP
+    'BGGR'
+    """
+    meta = dict(raw.metadata)
+    if pattern is not None and pattern != raw.pattern:
+        meta["declared_pattern"] = raw.pattern
+    if black_level is not None:
+        meta["declared_black_level"] = list(raw.black_level)
+    try:
+        return RawImage(
+            raw.bayer,
+            pattern if pattern is not None else raw.pattern,
+            raw.black_level if black_level is None else black_level,  # type: ignore[arg-type]
+            raw.white_level,
+            raw.bit_depth,
+            raw.sensor,
+            meta,
+        )
+    except RawFormatError as exc:
+        raise RawFormatError(exc.problem, raw.source) from None

@@ -97,7 +97,8 @@ def read_dng(path: str | os.PathLike[str]) -> RawImage:
                 raise RawFormatError("not a Bayer raw image (LibRaw finds no 2x2 colour filter pattern)", path)
             bayer = np.array(rp.raw_image_visible, dtype=np.uint16, copy=True)
             desc = rp.color_desc.decode("ascii")
-            cfa = rp.raw_pattern[:2, :2]
+            # The colours of the visible area's first 2x2 block (raw_pattern refers to the uncropped sensor).
+            cfa = rp.raw_colors_visible[:2, :2]
             pattern = "".join(desc[i] for i in cfa.ravel())
             per_channel = list(rp.black_level_per_channel)
             black = tuple(float(per_channel[i]) for i in cfa.ravel())

@@ -1,0 +1,77 @@
+"""Trust but verify: check what a raw file says about itself against its data.
+
+Files in the wild lie. A real PiDNG file from an IMX219 declares GBRG while its greens sit on the other
+diagonal, and has no black level. The two green sites of a 2x2 block see the same colour, so on a white
+or natural scene they agree with each other far better than with red or blue: that tells which diagonal
+the greens are on (not which of the other two sites is red).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sensors import SENSORS, black_level_at
+from .model import RawImage
+
+#: Diagonals of the 2x2 block: sites (0, 0)/(1, 1) and (0, 1)/(1, 0).
+_DIAGONALS = ((0, 3), (1, 2))
+_GREEN_DIAGONAL = {"RGGB": 1, "BGGR": 1, "GRBG": 0, "GBRG": 0}
+#: The declared green pair must differ this many times more than the other pair before we say so.
+_EVIDENCE = 2.5
+
+
+def site_disagreement(raw: RawImage, max_rows: int = 256) -> tuple[float, float]:
+    """Relative mean difference between the two sites of each diagonal, ((0,0)-(1,1), (0,1)-(1,0)).
+
+    Uses up to ``max_rows`` evenly spaced rows of 2x2 blocks, so it costs little on large frames.
+
+    Examples
+    --------
+    >>> site_disagreement(raw)  # doctest: +SKIP
+    (0.21, 0.004)
+    """
+    step = max(1, raw.height // 2 // max_rows)
+    blocks = raw.bayer.reshape(raw.height // 2, 2, raw.width // 2, 2)[::step].astype(np.float32)
+    black = np.asarray(raw.black_level, dtype=np.float32).reshape(2, 2)
+    sites = [blocks[:, sy, :, sx] - black[sy, sx] for sy in (0, 1) for sx in (0, 1)]
+    out = []
+    for a, b in _DIAGONALS:
+        scale = float(np.mean(np.abs(sites[a]) + np.abs(sites[b]))) or 1.0
+        out.append(float(np.mean(np.abs(sites[a] - sites[b]))) / scale)
+    return out[0], out[1]
+
+
+def check_metadata(raw: RawImage) -> list[str]:
+    """Problems found by comparing a raw image's declared pattern and black level with its data.
+
+    Returns
+    -------
+    list of str
+        One sentence per problem, each saying what to pass to override it; empty if all is well.
+
+    Examples
+    --------
+    >>> check_metadata(raw)  # doctest: +SKIP
+    ['the file declares Bayer order GBRG, but the greens sit on the other diagonal (...): pass --pattern RGGB or BGGR']
+    """
+    problems = []
+    d = site_disagreement(raw)
+    green = _GREEN_DIAGONAL[raw.pattern]
+    other = 1 - green
+    if d[green] > _EVIDENCE * d[other] and d[green] > 0.02:
+        candidates = " or ".join(p for p, diag in _GREEN_DIAGONAL.items() if diag == other)
+        said = "--pattern gives" if "declared_pattern" in raw.metadata else "the file declares"
+        problems.append(
+            f"{said} Bayer order {raw.pattern}, but the greens sit on the other diagonal (the sites it calls green "
+            f"differ by {100 * d[green]:.1f} %, the other pair by {100 * d[other]:.1f} %): pass --pattern {candidates}"
+        )
+    sensor = SENSORS.get(raw.sensor or "")
+    if sensor is not None and not any(raw.black_level):
+        expected = black_level_at(sensor, raw.bit_depth)
+        low = float(np.percentile(raw.bayer[::8, ::8], 0.1))
+        if low >= 0.5 * expected:
+            problems.append(
+                f"declares no black level, but the {sensor.name.upper()}'s is {expected:g} DN at {raw.bit_depth} bits "
+                f"and no pixel is darker than {low:g} DN: pass --black-level {expected:g}"
+            )
+    return problems
