@@ -18,7 +18,7 @@ from .errors import (
     PicamcalWarning,
     RawFormatError,
 )
-from .raw import RawImage, read_raw, write_dng, write_npz
+from .raw import RawImage, read_raw, write_brcm, write_dng, write_npz
 
 __all__ = [
     "Calibration",
@@ -34,6 +34,7 @@ __all__ = [
     "correct",
     "load_calibration",
     "read_raw",
+    "write_brcm",
     "write_dng",
     "write_npz",
 ]

@@ -223,6 +223,7 @@ def simulate_cmd(
     size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
     noise: Annotated[bool, typer.Option(help="Shot and read noise.")] = True,
     dust: Annotated[int, typer.Option(help="Number of dust specks on the white reference.")] = 0,
+    fmt: Annotated[str, typer.Option("--format", help="Raw format: dng, brcm (legacy JPEG+raw), npy, npz.")] = "dng",
     overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
 ) -> None:
     """Simulate a calibration run: five references, a colour-wheel target and the ground truth."""
@@ -238,6 +239,7 @@ def simulate_cmd(
             seed=seed,
             noise=noise,
             dust=dust,
+            fmt=fmt,
             overwrite=overwrite,
         )
     console.print(f"wrote {len(paths)} files to {out}")
@@ -310,6 +312,9 @@ def demo_cmd(
     sensor: Annotated[str, typer.Option(help="Simulated sensor.")] = "imx219",
     size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    fmt: Annotated[
+        str, typer.Option("--format", help="Raw format of the simulated files: dng, brcm, npy, npz.")
+    ] = "dng",
     overwrite: Annotated[bool, typer.Option(help="Write into a folder that is not empty.")] = False,
 ) -> None:
     """Run the whole method on the simulated camera and print the figures before and after."""
@@ -325,9 +330,10 @@ def demo_cmd(
         def step(description: str) -> None:
             progress.update(task, description=description, completed=STEPS.index(description))
 
-        figures = run_demo(out, sensor, size=_parse_size(size), seed=seed, progress=step)
+        figures = run_demo(out, sensor, size=_parse_size(size), seed=seed, fmt=fmt, progress=step)
         progress.update(task, description="done", completed=len(STEPS))
-    table = Table(title=f"picamcal demo: simulated {sensor} {figures['size'][0]}x{figures['size'][1]}")
+    size_text = f"{figures['size'][0]}x{figures['size'][1]}"
+    table = Table(title=f"picamcal demo: simulated {sensor} {size_text}, {fmt} files")
     table.add_column("mode")
     for heading in (
         "white flatness CV %",

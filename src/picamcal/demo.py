@@ -37,6 +37,7 @@ def run_demo(
     *,
     size: tuple[int, int] | None = None,
     seed: int = 0,
+    fmt: str = "dng",
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Simulate a calibration run, calibrate, correct the colour-wheel target in every mode and measure.
@@ -54,6 +55,9 @@ def run_demo(
         Simulate a smaller frame (tests use this); default the sensor's full size.
     seed : int
         Random seed of the simulation.
+    fmt : str
+        Raw format of the simulated files (``dng``, ``brcm``, ``npy``, ``npz``: see
+        :data:`picamcal.simulate.RAW_WRITERS`); they are read back through :func:`picamcal.read_raw`.
     progress : callable, optional
         Called with the description of each step in :data:`STEPS` as it starts.
 
@@ -75,7 +79,7 @@ def run_demo(
     out.mkdir(parents=True, exist_ok=True)
 
     step(STEPS[0])
-    paths = simulate_run(out / "raw", sensor, size=size, seed=seed, overwrite=True)
+    paths = simulate_run(out / "raw", sensor, size=size, seed=seed, fmt=fmt, overwrite=True)
     camera = make_camera(sensor, size=size)
     check_white = simulate_references(camera, seed=seed + 1000)["white"]
 
@@ -109,6 +113,7 @@ def run_demo(
         "size": [target.width, target.height],
         "bin_size": cal.bin_size,
         "seed": seed,
+        "format": fmt,
         "modes": modes,
         "mode_meaning": {
             "balance": "colour balance only (uncorrected)",

@@ -8,7 +8,7 @@ from pathlib import Path
 from .errors import CalibrationInputError
 
 ROLES = ("white", "red", "green", "blue", "black")
-RAW_SUFFIXES = {".dng", ".npz"}
+RAW_SUFFIXES = {".dng", ".jpg", ".jpeg", ".npy", ".npz"}
 _PAPER_STYLE = re.compile(r"r(\d+)_g(\d+)_b(\d+)", re.IGNORECASE)
 
 

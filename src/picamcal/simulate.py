@@ -58,6 +58,7 @@ from scipy.special import ndtr
 from ._atomic import atomic_path
 from .bayer import bin_sites
 from .errors import OutputError, PicamcalError
+from .raw.brcm import write_brcm
 from .raw.dng import write_dng
 from .raw.model import PATTERNS, RawImage, site_channels
 from .raw.npz import write_npz
@@ -111,6 +112,9 @@ _SUPERSAMPLE = 4  # per axis, at wheel edges only
 
 _OFFSETS = range(-2, 3)  # lenslets P = Q - n that can reach photodiode Q
 _PAD = 2
+
+#: Raw formats simulate_run writes: name -> (writer, file suffix).
+RAW_WRITERS = {"dng": (write_dng, ".dng"), "brcm": (write_brcm, ".jpg"), "npz": (write_npz, ".npz")}
 
 _EXPOSURE_TIME_S = 0.01
 _ANALOGUE_GAIN = 1.0
@@ -848,7 +852,7 @@ def simulate_run(
     """Simulate a whole calibration run and write it to a directory, with its ground truth.
 
     Writes ``white``, ``red``, ``green``, ``blue``, ``black`` and ``target`` raw files (``.dng``, or
-    picamcal ``.npz`` with ``fmt="npz"``), ``layout.json`` (:func:`wheel_layout`), ``truth.npz``
+    another format with ``fmt``), ``layout.json`` (:func:`wheel_layout`), ``truth.npz``
     (:func:`ground_truth` arrays and ``bin_size``) and ``truth.json`` (sensor, pattern, size, tilt, seed,
     optics, exposure scale, dust specks, layout). Every file is written atomically.
 
@@ -866,8 +870,9 @@ def simulate_run(
         Number of dust specks on the white reference.
     bin_size : int
         Bin size of the ground truth.
-    fmt : {"dng", "npz"}
-        Raw file format.
+    fmt : {"dng", "brcm", "npz"}
+        Raw file format: DNG, the legacy firmware's JPEG with a BRCM raw block (``.jpg``; only at the
+        sensor's legacy mode sizes), or picamcal ``.npz``.
     overwrite : bool
         Replace existing files; otherwise nothing is written if any output exists.
 
@@ -887,17 +892,25 @@ def simulate_run(
     >>> paths["white"], paths["truth_json"]  # doctest: +SKIP
     (PosixPath('run1/white.dng'), PosixPath('run1/truth.json'))
     """
-    writers = {"dng": write_dng, "npz": write_npz}
-    if fmt not in writers:
-        raise PicamcalError(f"unknown raw format {fmt!r} (expected 'dng' or 'npz')")
+    if fmt not in RAW_WRITERS:
+        raise PicamcalError(f"unknown raw format {fmt!r} (expected one of {', '.join(RAW_WRITERS)})")
+    writer, suffix = RAW_WRITERS[fmt]
     out = Path(out_dir)
-    paths = {name: out / f"{name}.{fmt}" for name in (*REFERENCES, "target")}
+    paths = {name: out / f"{name}{suffix}" for name in (*REFERENCES, "target")}
     paths.update(layout=out / "layout.json", truth_npz=out / "truth.npz", truth_json=out / "truth.json")
     if not overwrite:
         for path in paths.values():
             if path.exists():
                 raise OutputError("exists already (use --overwrite to replace it)", path)
     camera = make_camera(sensor, pattern=pattern, size=size, tilt=tilt)
+    if fmt == "brcm" and not any(
+        (m.width, m.height, m.bit_depth) == (camera.width, camera.height, camera.bit_depth)
+        for m in get_sensor(sensor).legacy_modes
+    ):
+        modes = ", ".join(f"{m.width}x{m.height}" for m in get_sensor(sensor).legacy_modes) or "none"
+        raise PicamcalError(
+            f"the legacy JPEG+raw format has no {camera.width}x{camera.height} mode for the {sensor} (modes: {modes})"
+        )
     truth = ground_truth(camera, bin_size=bin_size)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -908,7 +921,7 @@ def simulate_run(
     target, layout = simulate_target(camera, noise=noise, seed=seed)
     frames["target"] = target
     for name, raw in frames.items():
-        writers[fmt](paths[name], raw, overwrite=overwrite)
+        writer(paths[name], raw, overwrite=overwrite)
     _write_json(paths["layout"], layout, overwrite)
     with atomic_path(paths["truth_npz"], overwrite=overwrite) as tmp, open(tmp, "wb") as f:
         np.savez(f, **truth, bin_size=np.array(bin_size))

@@ -12,16 +12,30 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import PicamcalWarning, RawFormatError
+from .brcm import is_jpeg, read_brcm, write_brcm
 from .dng import is_dng, read_dng, write_dng
 from .model import PATTERNS, RawImage, site_channels
 from .npz import read_npz, write_npz
 from .verify import check_metadata
 
-__all__ = ["PATTERNS", "RawImage", "read_dng", "read_npz", "read_raw", "site_channels", "write_dng", "write_npz"]
+__all__ = [
+    "PATTERNS",
+    "RawImage",
+    "check_metadata",
+    "is_jpeg",
+    "override",
+    "read_brcm",
+    "read_dng",
+    "read_npz",
+    "read_raw",
+    "site_channels",
+    "write_brcm",
+    "write_dng",
+    "write_npz",
+]
 
 _SIGNATURES = {
     b"\x89PNG": "a PNG image",
-    b"\xff\xd8\xff": "a JPEG image",
     b"GIF8": "a GIF image",
     b"%PDF": "a PDF document",
 }
@@ -37,7 +51,8 @@ def read_raw(
     """Read a raw Bayer image from a file, whatever its format.
 
     The format is recognised from the file's first bytes, not its name. Supported: DNG (read by
-    LibRaw through rawpy) and picamcal's own raw ``.npz``.
+    LibRaw through rawpy), the legacy firmware's JPEG with a BRCM raw block, and picamcal's own raw
+    ``.npz`` (docs/formats.md).
 
     What the file declares is checked against its data (:func:`picamcal.raw.verify.check_metadata`):
     a Bayer order whose greens sit on the wrong diagonal, or a missing black level, gives a
@@ -96,12 +111,14 @@ def read_raw(
 def _read_by_signature(path: Path, head: bytes) -> RawImage:
     if is_dng(head):
         return read_dng(path)
+    if is_jpeg(head) or head.startswith(b"BRCM"):
+        return read_brcm(path)
     if head.startswith(b"PK"):
         return read_npz(path)
     for signature, what in _SIGNATURES.items():
         if head.startswith(signature):
             raise RawFormatError(f"{what}, not a raw image", path)
-    raise RawFormatError("not a raw image format picamcal reads (DNG or picamcal .npz)", path)
+    raise RawFormatError("not a raw image format picamcal reads (DNG, JPEG+raw, picamera2 .npy or picamcal .npz)", path)
 
 
 def override(
