@@ -277,7 +277,8 @@ def calibrate(
     if nbad > 0.25 * bad.size:
         raise CalibrationInputError(
             f"the red, green and blue references do not separate the colours: {nbad} of {bad.size} bins have an "
-            f"ill-conditioned crosstalk matrix (condition > {MAX_CONDITION:g}); check the illumination colours",
+            f"ill-conditioned crosstalk matrix (condition > {MAX_CONDITION:g}); check the illumination colours and the "
+            "Bayer order (--pattern)",
             raws[1].source,
         )
     if nbad:

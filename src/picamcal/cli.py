@@ -290,6 +290,8 @@ def inspect_cmd(
     stdout = _stdout()
     stdout.print(table)
     for r in records:
+        if "note" in r:
+            stdout.print(f"{Path(r['path']).name}: not raw: {r['note']}", markup=False)
         for warning in r["warnings"]:
             stdout.print(f"{Path(r['path']).name}: {warning}", style="yellow", markup=False)
 
