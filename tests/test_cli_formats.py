@@ -150,3 +150,31 @@ def test_bad_raw_inputs(brcm_run, tmp_path):
     assert inspected.returncode == 0 and "processed jpeg" in inspected.stdout and "not raw:" in inspected.stdout
     assert_bad_input(run("inspect", str(tmp_path / "nothing.dng")), "nothing.dng", "no such file")
     assert not out.exists()
+
+
+def test_every_format_gives_the_same_calibration(tmp_path):
+    # One simulated run (same seed) written in every format: the mosaics are identical, so must the calibrations be.
+    unmixing = {}
+    for fmt in ("dng", "brcm", "npy", "npz"):
+        folder = tmp_path / fmt
+        assert (
+            run("simulate", "--out", str(folder), "--format", fmt, "--size", "640x480", "--seed", "9").returncode == 0
+        )
+        result = run("calibrate", str(folder), "--out", str(tmp_path / f"{fmt}.npz"))
+        assert result.returncode == 0, result.stderr
+        cal = load_calibration(tmp_path / f"{fmt}.npz")
+        assert {i["format"] for i in cal.meta["inputs"]} == {fmt if fmt != "npy" else "picamera2-npy"}
+        unmixing[fmt] = cal.unmixing
+        suffix = {"dng": ".dng", "brcm": ".jpg", "npy": ".npy", "npz": ".npz"}[fmt]
+        listed = run("inspect", str(folder / f"target{suffix}"), "--json")
+        assert json.loads(listed.stdout)[0]["raw"] is True
+    for fmt, u in unmixing.items():
+        np.testing.assert_array_equal(u, unmixing["dng"], err_msg=fmt)
+
+
+def test_demo_runs_on_legacy_jpeg_raw_files(tmp_path):
+    result = run("demo", "--out", str(tmp_path / "demo"), "--format", "brcm", "--size", "640x480")
+    assert result.returncode == 0, result.stderr
+    figures = json.loads((tmp_path / "demo" / "figures.json").read_text())
+    assert figures["format"] == "brcm" and figures["modes"]["centre"]["max_delta_e"] < 1.0
+    assert (tmp_path / "demo" / "raw" / "white.jpg").exists()

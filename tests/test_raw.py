@@ -95,3 +95,32 @@ def test_raw_image_validates_its_fields():
         RawImage(np.zeros((3, 4), np.uint16), "RGGB", (0,) * 4, 1023, 10)
     with pytest.raises(RawFormatError, match="uint16"):
         RawImage(np.zeros((4, 4), np.float32), "RGGB", (0,) * 4, 1023, 10)
+
+
+def test_dng_active_area_gives_the_visible_mosaic_and_its_pattern(tmp_path):
+    # A DNG whose ActiveArea starts one pixel in: the pattern of the visible area is not the sensor's.
+    import tifffile
+
+    rng = np.random.default_rng(2)
+    bayer = rng.integers(0, 1024, size=(64, 80), dtype=np.uint16)
+    tags = [
+        (33421, 3, 2, (2, 2), True),
+        (33422, 1, 4, bytes((0, 1, 1, 2)), True),  # RGGB
+        (50706, 1, 4, bytes((1, 4, 0, 0)), True),
+        (50708, 2, 0, "imx219", True),
+        (50713, 3, 2, (2, 2), True),
+        (50714, 3, 4, (60, 61, 62, 63), True),
+        (50717, 3, 1, 1023, True),
+        (50829, 3, 4, (1, 1, 63, 79), True),  # ActiveArea top, left, bottom, right
+    ]
+    path = tmp_path / "active.dng"
+    tifffile.imwrite(path, bayer, photometric=32803, extratags=tags, metadata=None)
+    with rawpy.imread(str(path)) as rp:
+        visible = rp.raw_image_visible.copy()
+        colours = rp.raw_colors_visible[:2, :2]
+        desc = rp.color_desc.decode()
+    raw = read_raw(path, verify=False)
+    h, w = visible.shape[0] // 2 * 2, visible.shape[1] // 2 * 2
+    np.testing.assert_array_equal(raw.bayer, visible[:h, :w])  # LibRaw's visible area, cropped to whole 2x2 blocks
+    assert raw.pattern == "".join(desc[c] for c in colours.ravel())
+    assert raw.pattern != "RGGB" and raw.bayer.shape[0] % 2 == 0 and raw.sensor == "imx219"

@@ -18,7 +18,7 @@ from .errors import (
     PicamcalWarning,
     RawFormatError,
 )
-from .raw import RawImage, read_raw, write_brcm, write_dng, write_npz
+from .raw import RawImage, from_picamera2, read_raw, write_brcm, write_dng, write_npz
 
 __all__ = [
     "Calibration",
@@ -32,6 +32,7 @@ __all__ = [
     "__version__",
     "calibrate",
     "correct",
+    "from_picamera2",
     "load_calibration",
     "read_raw",
     "write_brcm",

@@ -62,6 +62,7 @@ from .raw.brcm import write_brcm
 from .raw.dng import write_dng
 from .raw.model import PATTERNS, RawImage, site_channels
 from .raw.npz import write_npz
+from .raw.picamera2 import write_raw_as_picamera2_npy
 from .sensors import get_sensor
 
 __all__ = [
@@ -114,7 +115,12 @@ _OFFSETS = range(-2, 3)  # lenslets P = Q - n that can reach photodiode Q
 _PAD = 2
 
 #: Raw formats simulate_run writes: name -> (writer, file suffix).
-RAW_WRITERS = {"dng": (write_dng, ".dng"), "brcm": (write_brcm, ".jpg"), "npz": (write_npz, ".npz")}
+RAW_WRITERS = {
+    "dng": (write_dng, ".dng"),
+    "brcm": (write_brcm, ".jpg"),
+    "npy": (write_raw_as_picamera2_npy, ".npy"),
+    "npz": (write_npz, ".npz"),
+}
 
 _EXPOSURE_TIME_S = 0.01
 _ANALOGUE_GAIN = 1.0
@@ -870,9 +876,10 @@ def simulate_run(
         Number of dust specks on the white reference.
     bin_size : int
         Bin size of the ground truth.
-    fmt : {"dng", "brcm", "npz"}
+    fmt : {"dng", "brcm", "npy", "npz"}
         Raw file format: DNG, the legacy firmware's JPEG with a BRCM raw block (``.jpg``; only at the
-        sensor's legacy mode sizes), or picamcal ``.npz``.
+        sensor's legacy mode sizes), picamera2's packed raw buffer as ``.npy`` with a JSON sidecar, or
+        picamcal ``.npz``.
     overwrite : bool
         Replace existing files; otherwise nothing is written if any output exists.
 
@@ -907,9 +914,10 @@ def simulate_run(
         (m.width, m.height, m.bit_depth) == (camera.width, camera.height, camera.bit_depth)
         for m in get_sensor(sensor).legacy_modes
     ):
-        modes = ", ".join(f"{m.width}x{m.height}" for m in get_sensor(sensor).legacy_modes) or "none"
+        modes = ", ".join(f"{m.width}x{m.height} {m.bit_depth}-bit" for m in get_sensor(sensor).legacy_modes)
         raise PicamcalError(
-            f"the legacy JPEG+raw format has no {camera.width}x{camera.height} mode for the {sensor} (modes: {modes})"
+            f"the legacy JPEG+raw format has no {camera.width}x{camera.height} {camera.bit_depth}-bit mode for the "
+            f"{sensor} (modes: {modes or 'none'})"
         )
     truth = ground_truth(camera, bin_size=bin_size)
     try:

@@ -16,22 +16,28 @@ from .brcm import is_jpeg, read_brcm, write_brcm
 from .dng import is_dng, read_dng, write_dng
 from .model import PATTERNS, RawImage, site_channels
 from .npz import read_npz, write_npz
+from .picamera2 import from_picamera2, is_npy, read_picamera2_npy, to_picamera2, write_picamera2_npy
 from .verify import check_metadata
 
 __all__ = [
     "PATTERNS",
     "RawImage",
     "check_metadata",
+    "from_picamera2",
     "is_jpeg",
+    "is_npy",
     "override",
     "read_brcm",
     "read_dng",
     "read_npz",
+    "read_picamera2_npy",
     "read_raw",
     "site_channels",
+    "to_picamera2",
     "write_brcm",
     "write_dng",
     "write_npz",
+    "write_picamera2_npy",
 ]
 
 _SIGNATURES = {
@@ -51,8 +57,8 @@ def read_raw(
     """Read a raw Bayer image from a file, whatever its format.
 
     The format is recognised from the file's first bytes, not its name. Supported: DNG (read by
-    LibRaw through rawpy), the legacy firmware's JPEG with a BRCM raw block, and picamcal's own raw
-    ``.npz`` (docs/formats.md).
+    LibRaw through rawpy), the legacy firmware's JPEG with a BRCM raw block, picamera2 raw buffers
+    saved as ``.npy`` with a JSON sidecar, and picamcal's own raw ``.npz`` (docs/formats.md).
 
     What the file declares is checked against its data (:func:`picamcal.raw.verify.check_metadata`):
     a Bayer order whose greens sit on the wrong diagonal, or a missing black level, gives a
@@ -115,6 +121,8 @@ def _read_by_signature(path: Path, head: bytes) -> RawImage:
         return read_brcm(path)
     if head.startswith(b"PK"):
         return read_npz(path)
+    if is_npy(head):
+        return read_picamera2_npy(path)
     for signature, what in _SIGNATURES.items():
         if head.startswith(signature):
             raise RawFormatError(f"{what}, not a raw image", path)
