@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import PicamcalWarning, RawFormatError
+from ._files import file_head
 from .brcm import is_jpeg, read_brcm, write_brcm
 from .dng import is_dng, read_dng, write_dng
 from .model import PATTERNS, RawImage, site_channels
@@ -94,18 +95,7 @@ def read_raw(
     ((2464, 3280), 'BGGR')
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            head = f.read(8)
-    except FileNotFoundError:
-        raise RawFormatError("no such file", path) from None
-    except IsADirectoryError:
-        raise RawFormatError("is a directory, not a raw image file", path) from None
-    except OSError as exc:
-        raise RawFormatError(f"cannot read: {exc.strerror or exc}", path) from exc
-    if not head:
-        raise RawFormatError("empty file (0 bytes)", path)
-    raw = _read_by_signature(path, head)
+    raw = _read_by_signature(path, file_head(path))
     if pattern is not None or black_level is not None:
         raw = override(raw, pattern=pattern, black_level=black_level)
     if verify:

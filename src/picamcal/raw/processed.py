@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import PicamcalError, RawFormatError
+from ._files import file_head
 
 
 @dataclass
@@ -177,15 +178,7 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     >>> image.rgb.dtype, image.rgb.max() <= 1.0  # doctest: +SKIP
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            head = f.read(8)
-    except FileNotFoundError:
-        raise RawFormatError("no such file", path) from None
-    except OSError as exc:
-        raise RawFormatError(f"cannot read: {exc.strerror or exc}", path) from exc
-    if not head:
-        raise RawFormatError("empty file (0 bytes)", path)
+    head = file_head(path)
     meta: dict[str, Any] = {"path": str(path)}
     try:
         if head[:4] in (b"II*\x00", b"MM\x00*"):
