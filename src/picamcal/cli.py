@@ -151,8 +151,19 @@ def correct_cmd(
         bool, typer.Option(help="The images are processed (JPEG/PNG/TIFF from the camera's ISP), not raw.")
     ] = False,
     input_encoding: Annotated[
-        str, typer.Option(help="With --processed: srgb, linear, gamma:G or tuning:FILE (its rpi.contrast curve).")
-    ] = "srgb",
+        str | None,
+        typer.Option(
+            help="With --processed: srgb, linear, gamma:G or tuning:FILE (its rpi.contrast curve); default srgb, "
+            "or the --tuning file's curve."
+        ),
+    ] = None,
+    tuning_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--tuning",
+            help="With --processed: the tuning file the camera ran with; its lens shading and CCM are accounted for.",
+        ),
+    ] = None,
     white_image: Annotated[
         Path | None, typer.Option("--white", help="With --processed: a processed white reference (residual flat).")
     ] = None,
@@ -162,20 +173,23 @@ def correct_cmd(
 ) -> None:
     """Correct raw (or, with --processed, ISP-processed) images; write float32 linear RGB TIFF files."""
     from .calibration import MODES, load_calibration
-    from .correct import correct, correct_processed
+    from .correct import correct
     from .output import write_rgb_tiff
     from .raw.processed import linearise, read_processed
 
     if mode not in MODES:
         raise typer.BadParameter(f"{mode!r} is not one of {', '.join(MODES)}", param_hint="--mode")
-    if white_image is not None and not processed:
-        raise typer.BadParameter("--white goes with --processed (raw images are flat-fielded by the calibration)")
+    if (white_image is not None or tuning_file is not None or input_encoding is not None) and not processed:
+        raise typer.BadParameter("--white, --tuning and --input-encoding go with --processed")
+    if input_encoding is None:
+        input_encoding = f"tuning:{tuning_file}" if tuning_file is not None else "srgb"
     if processed and binned:
         raise typer.BadParameter("--binned is for raw images")
     linearise(np.zeros(1), input_encoding)  # a bad encoding fails here, before any work
     cal = load_calibration(calibration)
     read = _reader(pattern, black_level)
     white = read_processed(white_image, input_encoding) if white_image is not None else None
+    tuning = _load_tuning(tuning_file) if tuning_file is not None else None
     targets = [out / f"{image.stem}.tiff" for image in images]
     stems = [t.name for t in targets]
     for image, target in zip(images, targets, strict=True):
@@ -190,7 +204,7 @@ def correct_cmd(
         task = progress.add_task(f"correcting ({mode})", total=len(images))
         for image, target in zip(images, targets, strict=True):
             if processed:
-                rgb = correct_processed(read_processed(image, input_encoding), cal, mode, white=white)
+                rgb = _correct_processed(read_processed(image, input_encoding), cal, mode, white, tuning)
             else:
                 rgb = correct(read(image), cal, mode=mode, binned=binned)
             info = {"source": image.name, "calibration": calibration.name, "mode": mode, "binned": binned}
@@ -199,6 +213,24 @@ def correct_cmd(
             write_rgb_tiff(target, rgb, info, overwrite=overwrite)
             progress.advance(task)
     console.print(f"wrote {len(images)} image(s) to {out}")
+
+
+def _load_tuning(path: Path) -> dict:
+    from .export.tuning import load_tuning
+
+    return load_tuning(path)
+
+
+def _correct_processed(image, cal, mode: str, white, tuning: dict | None):
+    """correct_processed with the ISP's lens shading and CCM taken from the tuning file the camera ran with."""
+    from .correct import correct_processed
+    from .export.isp import alsc_section, isp_gains_for_image, tuning_ccm
+
+    if tuning is None:
+        return correct_processed(image, cal, mode, white=white)
+    ct = float(alsc_section(tuning).get("default_ct", 4500))
+    gains = isp_gains_for_image(tuning, (cal.width, cal.height), (image.width, image.height), ct=ct)
+    return correct_processed(image, cal, mode, white=white, ccm=tuning_ccm(tuning, ct), isp_gains=gains)
 
 
 def _parse_size(size: str | None) -> tuple[int, int] | None:
@@ -243,6 +275,142 @@ def simulate_cmd(
             overwrite=overwrite,
         )
     console.print(f"wrote {len(paths)} files to {out}")
+
+
+@app.command("export-tuning")
+def export_tuning_cmd(
+    calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Tuning file to write (.json).")],
+    base: Annotated[
+        Path | None, typer.Option(help="Tuning file to start from (default on a Pi: the sensor's stock file).")
+    ] = None,
+    target: Annotated[str, typer.Option(help="Without --base: vc4 (Pi 4 and earlier) or pisp (Pi 5).")] = "vc4",
+    ct: Annotated[int, typer.Option(help="Colour temperature of the table entry, kelvin.")] = 4500,
+    luminance_strength: Annotated[
+        float, typer.Option(help="libcamera luminance_strength (1 = full correction).")
+    ] = 1.0,
+    ccm: Annotated[bool, typer.Option("--ccm", help="Also write a static rpi.ccm from the calibration.")] = False,
+    clip_gains: Annotated[bool, typer.Option(help="Clip gains above the hardware limit instead of refusing.")] = False,
+    sensor: Annotated[
+        str | None, typer.Option(help="The sensor the base file is for (default: from its name).")
+    ] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
+) -> None:
+    """Write a libcamera tuning file with a static lens shading table (rpi.alsc) from the calibration."""
+    from .calibration import load_calibration
+    from .export.tuning import (
+        TARGET_NAMES,
+        export_tuning,
+        load_tuning,
+        save_tuning,
+        sensor_of_tuning_file,
+        stock_tuning_path,
+    )
+
+    cal = load_calibration(calibration)
+    if base is None:
+        if cal.sensor is None:
+            raise typer.BadParameter("the calibration does not say its sensor: give --base")
+        if target not in TARGET_NAMES:
+            raise typer.BadParameter(f"{target!r} is not vc4 or pisp", param_hint="--target")
+        base = stock_tuning_path(cal.sensor, TARGET_NAMES[target])
+    if out.exists() and not overwrite:
+        raise OutputError("exists already (use --overwrite to replace it)", out)
+    if _same_file(out, base):
+        raise OutputError("would replace the base tuning file; choose another --out", out)
+    base_tuning = load_tuning(base)
+    tuning = export_tuning(
+        cal,
+        base_tuning,
+        ct=ct,
+        luminance_strength=luminance_strength,
+        ccm=ccm,
+        clip_gains=clip_gains,
+        base_sensor=sensor or sensor_of_tuning_file(base),
+    )
+    save_tuning(out, tuning, overwrite=overwrite)
+    console.print(f"wrote {out}: static lens shading for {tuning['target']} from {calibration.name} (base {base.name})")
+
+
+@app.command("export-lst")
+def export_lst_cmd(
+    calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Table to write (.npy).")],
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
+) -> None:
+    """Write the legacy firmware's lens shading table (uint8 .npy for the picamera fork)."""
+    from .calibration import load_calibration
+    from .export.legacy import legacy_table, save_legacy_table
+
+    table = legacy_table(load_calibration(calibration))
+    save_legacy_table(out, table, overwrite=overwrite)
+    console.print(f"wrote {out}: {table.shape} uint8, gains {table.min() / 32:.2f} to {table.max() / 32:.2f}")
+
+
+@app.command("apply-tuning")
+def apply_tuning_cmd(
+    tuning_file: Annotated[Path, typer.Argument(help="libcamera tuning file (.json).")],
+    image: Annotated[Path, typer.Argument(help="Raw image.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output TIFF (float32 linear RGB).")],
+    ccm: Annotated[bool, typer.Option("--ccm", help="Also apply the tuning's rpi.ccm.")] = False,
+    colour_gains: Annotated[
+        str | None, typer.Option(help="Red and blue gains R,B (default: from the image, else 1,1).")
+    ] = None,
+    sensor_crop: Annotated[
+        str | None, typer.Option(help="X,Y,WIDTH,HEIGHT of the sensor mode's crop, in full-sensor pixels.")
+    ] = None,
+    sensor_size: Annotated[
+        str | None, typer.Option(help="Full sensor WIDTHxHEIGHT (default: the sensor registry's, or the image's).")
+    ] = None,
+    ct: Annotated[float | None, typer.Option(help="Colour temperature for the tables (default: the file's).")] = None,
+    pattern: PatternOption = None,
+    black_level: BlackOption = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
+) -> None:
+    """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
+    from .export.isp import apply_tuning, mode_for_image
+    from .output import write_rgb_tiff
+
+    tuning = _load_tuning(tuning_file)
+    raw = _reader(pattern, black_level)(image)
+    if _same_file(out, image):
+        raise OutputError("would replace the input image; choose another --out", out)
+    gains = _numbers(colour_gains, 2, "--colour-gains")
+    crop = _numbers(sensor_crop, 4, "--sensor-crop")
+    mode = mode_for_image(
+        _full_sensor_size(raw, sensor_size), (raw.width, raw.height), tuple(int(v) for v in crop) if crop else None
+    )
+    rgb = apply_tuning(raw, tuning, colour_gains=gains, ccm=ccm, mode=mode, ct=ct)
+    info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm}
+    write_rgb_tiff(out, rgb, info, overwrite=overwrite)
+    console.print(f"wrote {out}")
+
+
+def _full_sensor_size(raw, text: str | None) -> tuple[int, int]:
+    """The full sensor size an image's lens shading refers to: the option, the file's record, or the registry."""
+    from .sensors import SENSORS
+
+    if text is not None:
+        size = _parse_size(text)
+        assert size is not None
+        return size
+    if raw.metadata.get("sensor_size"):
+        width, height = raw.metadata["sensor_size"]
+        return int(width), int(height)
+    sensor = SENSORS.get(raw.sensor or "")
+    return (sensor.width, sensor.height) if sensor else (raw.width, raw.height)
+
+
+def _numbers(text: str | None, count: int, option: str) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.replace(",", " ").split())
+    except ValueError:
+        values = ()
+    if len(values) != count:
+        raise typer.BadParameter(f"{text!r} is not {count} comma-separated numbers", param_hint=option)
+    return values
 
 
 @app.command("inspect")
@@ -317,6 +485,10 @@ def demo_cmd(
     fmt: Annotated[
         str, typer.Option("--format", help="Raw format of the simulated files: dng, brcm, npy, npz.")
     ] = "dng",
+    tuning_base: Annotated[
+        list[Path] | None,
+        typer.Option(help="A libcamera tuning file to write the lens shading into (repeatable)."),
+    ] = None,
     overwrite: Annotated[bool, typer.Option(help="Write into a folder that is not empty.")] = False,
 ) -> None:
     """Run the whole method on the simulated camera and print the figures before and after."""
@@ -332,7 +504,9 @@ def demo_cmd(
         def step(description: str) -> None:
             progress.update(task, description=description, completed=STEPS.index(description))
 
-        figures = run_demo(out, sensor, size=_parse_size(size), seed=seed, fmt=fmt, progress=step)
+        figures = run_demo(
+            out, sensor, size=_parse_size(size), seed=seed, fmt=fmt, tuning_bases=tuning_base or (), progress=step
+        )
         progress.update(task, description="done", completed=len(STEPS))
     size_text = f"{figures['size'][0]}x{figures['size'][1]}"
     table = Table(title=f"picamcal demo: simulated {sensor} {size_text}, {fmt} files")
@@ -358,6 +532,8 @@ def demo_cmd(
     stdout.print(table)
     for mode, meaning in figures["mode_meaning"].items():
         stdout.print(f"  {mode}: {meaning}")
+    for name, record in figures["exports"].items():
+        stdout.print(f"  {name}: an independent white is flat to {record['white_flatness_percent']:.2f} % with it")
     stdout.print(f"Calibration, previews (target_<mode>.png) and figures.json are in {out}/")
 
 

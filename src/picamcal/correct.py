@@ -144,6 +144,7 @@ def correct_processed(
     white: ProcessedImage | np.ndarray | None = None,
     ccm: np.ndarray | None = None,
     crop: tuple[int, int, int, int] | None = None,
+    isp_gains: np.ndarray | None = None,
 ) -> np.ndarray:
     """Correct a processed (ISP output) image: apply only what the camera's pipeline did not.
 
@@ -170,6 +171,11 @@ def correct_processed(
     crop : (x, y, width, height), optional
         The part of the sensor, in sensor pixels, that the image shows; default the whole sensor
         (the image may be scaled, as the ISP's output usually is).
+    isp_gains : ndarray (H, W, 3), optional
+        The lens shading gains the ISP applied, per image pixel (from a tuning file:
+        :func:`picamcal.export.isp.lens_shading_gains`). The residual between them and this
+        calibration's flat field is divided out (normalised at the centre, so the image keeps its
+        brightness and colour balance there).
 
     Returns
     -------
@@ -212,10 +218,18 @@ def correct_processed(
         ay = interpolation_matrix(centres[0], np.arange(height))
         ax = interpolation_matrix(centres[1], np.arange(width))
         rgb /= upsample(means, ay, ax).astype(np.float32)
+    cy, cx = calibration.bin_centres
+    image_centres = ((cy - y0 + 0.5) / scale_y - 0.5, (cx - x0 + 0.5) / scale_x - 0.5)
+    if isp_gains is not None:
+        if isp_gains.shape != rgb.shape:
+            raise PicamcalError(f"ISP gains of shape {isp_gains.shape} do not match the {width}x{height} image", source)
+        ay = interpolation_matrix(image_centres[0], np.arange(height))
+        ax = interpolation_matrix(image_centres[1], np.arange(width))
+        residual = 1.0 / (upsample(calibration.white.astype(np.float64), ay, ax) * isp_gains)
+        ys, xs = slice(height // 3, max(2 * height // 3, height // 3 + 1)), slice(width // 3, max(2 * width // 3, 1))
+        rgb *= (residual / residual[ys, xs].mean(axis=(0, 1))).astype(np.float32)
     matrices = calibration.matrices(mode)
     if matrices is not None:
-        cy, cx = calibration.bin_centres
-        image_centres = ((cy - y0 + 0.5) / scale_y - 0.5, (cx - x0 + 0.5) / scale_x - 0.5)
         apply_matrix_field(rgb, matrices, image_centres)
     if ccm is not None:
         rgb = np.einsum("pq,yxq->yxp", ccm.astype(np.float32), rgb)

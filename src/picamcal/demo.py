@@ -7,7 +7,7 @@ the one a user's own data goes through.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -15,10 +15,10 @@ import numpy as np
 
 from ._atomic import atomic_path
 from .calibrate import calibrate
-from .calibration import MODES
+from .calibration import MODES, Calibration
 from .correct import correct
 from .metrics import flatness, save_preview, wheel_figures
-from .raw import read_raw
+from .raw import RawImage, read_raw
 from .simulate import make_camera, simulate_references, simulate_run
 
 #: The steps run_demo reports, in order.
@@ -38,12 +38,14 @@ def run_demo(
     size: tuple[int, int] | None = None,
     seed: int = 0,
     fmt: str = "dng",
+    tuning_bases: Sequence[str | Path] = (),
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Simulate a calibration run, calibrate, correct the colour-wheel target in every mode and measure.
 
     Writes into ``out_dir``: ``raw/`` (the simulated DNG files, layout and ground truth),
-    ``calibration.npz``, ``target_<mode>.png`` previews (sRGB) and ``figures.json``.
+    ``calibration.npz``, ``target_<mode>.png`` previews (sRGB), ``lens_shading_legacy.npy`` (the legacy
+    firmware's table), ``tuning_<target>.json`` for each base tuning file given, and ``figures.json``.
 
     Parameters
     ----------
@@ -58,6 +60,8 @@ def run_demo(
     fmt : str
         Raw format of the simulated files (``dng``, ``brcm``, ``npy``, ``npz``: see
         :data:`picamcal.simulate.RAW_WRITERS`); they are read back through :func:`picamcal.read_raw`.
+    tuning_bases : paths
+        libcamera tuning files to write a static lens shading table into (one output per base).
     progress : callable, optional
         Called with the description of each step in :data:`STEPS` as it starts.
 
@@ -108,6 +112,7 @@ def run_demo(
         save_preview(out / f"target_{mode}.png", rgb)
 
     step(STEPS[-1])
+    exports = _write_exports(cal, out, tuning_bases, check_white)
     figures = {
         "sensor": sensor,
         "size": [target.width, target.height],
@@ -115,6 +120,7 @@ def run_demo(
         "seed": seed,
         "format": fmt,
         "modes": modes,
+        "exports": exports,
         "mode_meaning": {
             "balance": "colour balance only (uncorrected)",
             "flat": "vignetting and colour balance (lens shading)",
@@ -125,3 +131,25 @@ def run_demo(
     with atomic_path(out / "figures.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2))
     return figures
+
+
+def _write_exports(cal: Calibration, out: Path, bases: Sequence[str | Path], white: RawImage) -> dict[str, Any]:
+    """The legacy table and one tuning file per base, with the flatness each gives an independent white."""
+    from .bayer import bin_sites
+    from .export.isp import apply_tuning
+    from .export.legacy import apply_legacy_table, legacy_table, save_legacy_table
+    from .export.tuning import export_tuning, load_tuning, save_tuning, sensor_of_tuning_file
+
+    exports: dict[str, Any] = {}
+    table = legacy_table(cal)
+    save_legacy_table(out / "lens_shading_legacy.npy", table, overwrite=True)
+    legacy = bin_sites(apply_legacy_table(white, table), cal.bin_size)
+    exports["lens_shading_legacy.npy"] = {"white_flatness_percent": float(100 * np.max(flatness(legacy)))}
+    for base in bases:
+        base_tuning = load_tuning(base)
+        tuning = export_tuning(cal, base_tuning, base_sensor=sensor_of_tuning_file(base))
+        name = f"tuning_{tuning['target']}.json"
+        save_tuning(out / name, tuning, overwrite=True)
+        rgb = apply_tuning(white, tuning)
+        exports[name] = {"base": str(base), "white_flatness_percent": float(100 * np.max(flatness(rgb, bin_size=16)))}
+    return exports

@@ -618,6 +618,8 @@ def render(
     bayer = np.clip(frame, 0, camera.white_level).astype(np.uint16)
     metadata: dict[str, Any] = {
         "simulated": True,
+        # The simulated frame is the whole (possibly reduced) sensor: lens shading maps onto all of it.
+        "sensor_size": [camera.width, camera.height],
         "exposure_time_s": _EXPOSURE_TIME_S,
         "analogue_gain": _ANALOGUE_GAIN,
         "tilt_deg": list(camera.tilt),

@@ -1,0 +1,1 @@
+"""Putting the calibration into the camera: libcamera tuning files, the legacy MMAL table, ISP emulation."""

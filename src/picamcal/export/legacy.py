@@ -1,0 +1,142 @@
+"""The legacy firmware's lens shading table (MMAL; the picamera fork ``rwb27/picamera``, branch lens-shading).
+
+A uint8 array of shape (4, H // 64 + 1, W // 64 + 1) from the sensor's full resolution, whatever the
+mode: planes R, Gr, Gb, B; each entry is the gain at the centre of a 64 x 64-pixel cell (sensor pixel
+32 + 64 k), in u3.5 fixed point (32 = 1.0, at most 255, about 7.97), interpolated bilinearly by the
+firmware. It corrects the processed (ISP) output only (FORMATS.md section 5).
+
+Loading it with the picamera fork::
+
+    import numpy as np
+    from picamera import PiCamera
+
+    camera = PiCamera()
+    camera.lens_shading_table = np.load("lst.npy")
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .._atomic import atomic_path
+from ..bayer import bin_centres
+from ..calibration import Calibration
+from ..errors import PicamcalError
+from ..interpolate import interpolation_matrix, upsample
+from ..raw.model import RawImage
+
+CELL = 64
+UNITY = 32
+
+
+def table_shape(width: int, height: int) -> tuple[int, int, int]:
+    """Shape of the legacy table for a full sensor of ``width`` x ``height``.
+
+    Examples
+    --------
+    >>> table_shape(3280, 2464), table_shape(2592, 1944)
+    ((4, 39, 52), (4, 31, 41))
+    """
+    return 4, height // CELL + 1, width // CELL + 1
+
+
+def plane_sites(pattern: str) -> list[int]:
+    """Bayer site (row-major in the 2x2 block) of each plane R, Gr, Gb, B; Gr is the green on the red row.
+
+    Examples
+    --------
+    >>> plane_sites("BGGR")
+    [3, 2, 1, 0]
+    """
+    red = pattern.index("R")
+    blue = pattern.index("B")
+    gr = red ^ 1  # the other site of red's row
+    gb = blue ^ 1
+    return [red, gr, gb, blue]
+
+
+def _cell_interpolation(n_cells: int, n_pixels: int, site: int) -> np.ndarray:
+    """Bilinear interpolation between cell centres (32 + 64 k), clamped beyond the outer ones, at one site's pixels."""
+    centres = CELL / 2 + CELL * np.arange(n_cells)
+    pixels = np.arange(site, n_pixels, 2)
+    position = np.clip((pixels - centres[0]) / CELL, 0, n_cells - 1)
+    lo = np.minimum(np.floor(position).astype(int), n_cells - 2)
+    frac = position - lo
+    matrix = np.zeros((pixels.size, n_cells))
+    matrix[np.arange(pixels.size), lo] = 1 - frac
+    matrix[np.arange(pixels.size), lo + 1] += frac
+    return matrix
+
+
+def legacy_table(calibration: Calibration) -> np.ndarray:
+    """The legacy lens shading table of a calibration: uint8 (4, H // 64 + 1, W // 64 + 1), planes R, Gr, Gb, B.
+
+    Each plane's target gain is its white's maximum over the white (1 at the brightest point, so the
+    table does not change the colour balance, as the firmware expects); the table values are chosen by
+    least squares so that the firmware's bilinear interpolation fits the target at every pixel row and
+    column of the sensor, then rounded to u3.5 and clipped to 32..255.
+
+    Raises
+    ------
+    PicamcalError
+        A gain above 255/32 would be needed (a table full of 255 gives black images, a reported failure).
+
+    Examples
+    --------
+    >>> np.save("lst.npy", legacy_table(load_calibration("cal.npz")))  # doctest: +SKIP
+    """
+    _, rows, cols = table_shape(calibration.width, calibration.height)
+    planes = []
+    for site in plane_sites(calibration.pattern):
+        sy, sx = divmod(site, 2)
+        ys, xs = np.arange(sy, calibration.height, 2), np.arange(sx, calibration.width, 2)
+        white = upsample(
+            calibration.site_white[..., site].astype(np.float64),
+            interpolation_matrix(bin_centres(calibration.height, calibration.bin_size, sy), ys),
+            interpolation_matrix(bin_centres(calibration.width, calibration.bin_size, sx), xs),
+        )
+        gain = white.max() / white
+        ay = _cell_interpolation(rows, calibration.height, sy)
+        ax = _cell_interpolation(cols, calibration.width, sx)
+        planes.append(np.linalg.pinv(ay) @ gain @ np.linalg.pinv(ax).T)
+    gains = np.stack(planes)
+    if gains.max() > 255 / UNITY:
+        raise PicamcalError(
+            f"the legacy table would need gains up to {gains.max():.2f}, above its maximum of {255 / UNITY:.2f}"
+        )
+    return np.clip(np.round(gains * UNITY), UNITY, 255).astype(np.uint8)
+
+
+def apply_legacy_table(raw: RawImage, table: np.ndarray) -> np.ndarray:
+    """Apply a legacy table to a raw mosaic the way the firmware does: black-subtracted mosaic times gains.
+
+    Returns the float32 mosaic (H, W) with each site multiplied by its plane's gains, interpolated
+    bilinearly between cell centres. For checking a table on a PC; the camera applies it to its ISP output.
+
+    Examples
+    --------
+    >>> flat = apply_legacy_table(picamcal.read_raw("white.jpg"), np.load("lst.npy"))  # doctest: +SKIP
+    """
+    expected = table_shape(raw.width, raw.height)
+    if table.shape != expected:
+        raise PicamcalError(
+            f"a legacy table for a {raw.width}x{raw.height} sensor has shape {expected}, not {table.shape}"
+        )
+    mosaic = raw.black_subtracted()
+    for plane, site in zip(table, plane_sites(raw.pattern), strict=True):
+        sy, sx = divmod(site, 2)
+        ay = _cell_interpolation(expected[1], raw.height, sy)
+        ax = _cell_interpolation(expected[2], raw.width, sx)
+        mosaic[sy::2, sx::2] *= (ay @ (plane.astype(np.float64) / UNITY) @ ax.T).astype(np.float32)
+    return mosaic
+
+
+def save_legacy_table(path: str | os.PathLike[str], table: np.ndarray, overwrite: bool = False) -> Path:
+    """Save a legacy table as ``.npy`` (what ``numpy.load`` gives back to the picamera fork), atomically."""
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
+        np.save(f, table)
+    return path
