@@ -168,7 +168,7 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     Parameters
     ----------
     path : path-like
-        JPEG, PNG (8 or 16 bit) or TIFF (8 or 16 bit, RGB).
+        JPEG, PNG (8 or 16 bit) or TIFF (8 or 16 bit, or float on a 0..1 scale; RGB).
     encoding : str
         How the values were encoded: ``srgb`` (default), ``linear``, ``gamma:G``, ``tuning:FILE``.
 
@@ -211,8 +211,10 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
         bits = 8
     elif data.dtype == np.uint16:
         bits = 16
+    elif data.dtype in (np.float32, np.float64):
+        bits = 32  # float TIFF (picamcal's own output, for one): taken as values on a 0..1 scale
     else:
-        raise RawFormatError(f"expected 8- or 16-bit samples, got {data.dtype}", path)
-    values = data.astype(np.float32) / float((1 << bits) - 1)
+        raise RawFormatError(f"expected 8- or 16-bit or float samples, got {data.dtype}", path)
+    values = data.astype(np.float32) if bits == 32 else data.astype(np.float32) / float((1 << bits) - 1)
     meta["encoding"] = encoding
     return ProcessedImage(linearise(values, encoding), encoding, bits, meta)
