@@ -139,6 +139,12 @@ def _sha256(path: Path) -> str:
 def _load(role: str, ref: RawLike) -> tuple[RawImage, dict]:
     raw = ref if isinstance(ref, RawImage) else read_raw(ref)
     info: dict = {"role": role, "format": raw.metadata.get("format", "array")}
+    # How well exposed the reference is: the diagnostics judge clipping and under-exposure from these.
+    sample = raw.bayer[::4, ::4]
+    black = float(np.median(raw.black_level))
+    info["median_fraction"] = round(float((np.median(sample) - black) / (raw.white_level - black)), 5)
+    info["p99_fraction"] = round(float((np.percentile(sample, 99.9) - black) / (raw.white_level - black)), 5)
+    info["clipped_fraction"] = float(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
     path = raw.metadata.get("path")
     if path and Path(path).is_file():
         info.update(name=Path(path).name, sha256=_sha256(Path(path)))
