@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from ._atomic import atomic_path
 from ._version import __version__
 from .errors import OutputError, PicamcalError, PicamcalWarning
 
@@ -368,7 +369,7 @@ def apply_tuning_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
-    from .export.isp import apply_tuning, mode_for_image
+    from .export.isp import apply_tuning, full_sensor_size, mode_for_image
     from .output import write_rgb_tiff
 
     tuning = _load_tuning(tuning_file)
@@ -377,28 +378,12 @@ def apply_tuning_cmd(
         raise OutputError("would replace the input image; choose another --out", out)
     gains = _numbers(colour_gains, 2, "--colour-gains")
     crop = _numbers(sensor_crop, 4, "--sensor-crop")
-    mode = mode_for_image(
-        _full_sensor_size(raw, sensor_size), (raw.width, raw.height), tuple(int(v) for v in crop) if crop else None
-    )
+    full = _parse_size(sensor_size) if sensor_size is not None else full_sensor_size(raw)
+    mode = mode_for_image(full, (raw.width, raw.height), tuple(int(v) for v in crop) if crop else None)
     rgb = apply_tuning(raw, tuning, colour_gains=gains, ccm=ccm, mode=mode, ct=ct)
     info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm}
     write_rgb_tiff(out, rgb, info, overwrite=overwrite)
     console.print(f"wrote {out}")
-
-
-def _full_sensor_size(raw, text: str | None) -> tuple[int, int]:
-    """The full sensor size an image's lens shading refers to: the option, the file's record, or the registry."""
-    from .sensors import SENSORS
-
-    if text is not None:
-        size = _parse_size(text)
-        assert size is not None
-        return size
-    if raw.metadata.get("sensor_size"):
-        width, height = raw.metadata["sensor_size"]
-        return int(width), int(height)
-    sensor = SENSORS.get(raw.sensor or "")
-    return (sensor.width, sensor.height) if sensor else (raw.width, raw.height)
 
 
 def _numbers(text: str | None, count: int, option: str) -> tuple[float, ...] | None:
@@ -474,6 +459,128 @@ def _levels(levels: list[float] | None) -> str:
     if not levels:
         return "-"
     return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
+
+
+@app.command("target")
+def target_cmd(
+    out: Annotated[Path, typer.Option("--out", "-o", help="TARGET.png or TARGET.pdf; the layout goes to TARGET.json.")],
+    size: Annotated[
+        str, typer.Option(help="WIDTHxHEIGHT in pixels (your monitor's, to show it full-screen).")
+    ] = "1920x1080",
+    overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
+) -> None:
+    """Write the colour-wheel test target (PNG to show full-screen, or PDF to print) and its layout."""
+    from .target import save_target
+
+    width, height = _parse_size(size) or (1920, 1080)
+    if out.suffix.lower() not in (".png", ".pdf"):
+        raise typer.BadParameter("the target is written as .png or .pdf", param_hint="--out")
+    for path in (out, out.with_suffix(".json")):
+        if path.exists() and not overwrite:
+            raise OutputError("exists already (use --overwrite to replace it)", path)
+    image, layout = save_target(out, width, height)
+    console.print(f"wrote {image} and its layout {layout}")
+
+
+@app.command("analyse")
+def analyse_cmd(
+    images: Annotated[list[Path], typer.Argument(help="Images of the colour-wheel target (raw or processed).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+    calibration: Annotated[Path | None, typer.Option(help="Calibration: analyse every correction mode.")] = None,
+    layout: Annotated[
+        Path | None, typer.Option(help="The target's layout (TARGET.json), to use its fiducials.")
+    ] = None,
+    input_encoding: Annotated[
+        str, typer.Option(help="For processed images: srgb, linear, gamma:G, tuning:FILE.")
+    ] = "srgb",
+    overwrite: Annotated[bool, typer.Option(help="Replace existing outputs.")] = False,
+) -> None:
+    """Find the colour wheels, compare each with the centre wheel (CIEDE2000, hue, saturation), draw polar plots."""
+    import json
+
+    from .analysis.images import images_by_mode
+    from .analysis.wheels import analyse, find_wheels, polar_plot
+    from .calibration import load_calibration
+
+    cal = load_calibration(calibration) if calibration is not None else None
+    target_layout = _read_json(layout) if layout is not None else None
+    outputs = [out / f"{image.stem}_analysis.json" for image in images]
+    for path in outputs:
+        if path.exists() and not overwrite:
+            raise OutputError("exists already (use --overwrite to replace it)", path)
+    out.mkdir(parents=True, exist_ok=True)
+    table = Table(title="CIEDE2000 of the wheels against the centre wheel")
+    for heading in ("image", "mode", "max", "mean", "saturation"):
+        table.add_column(heading)
+    with _progress() as progress:
+        task = progress.add_task("analysing", total=len(images))
+        for image, output in zip(images, outputs, strict=True):
+            by_mode = images_by_mode(image, cal, input_encoding=input_encoding)
+            first = next(iter(by_mode.values()))
+            try:
+                found = find_wheels(first, layout=target_layout)
+            except PicamcalError as exc:
+                raise PicamcalError(exc.problem, image) from None
+            result = analyse(by_mode, found)
+            for mode in by_mode:
+                polar_plot(result[mode], out / f"{image.stem}_{mode}_polar.png", title=f"{image.name}: {mode}")
+                summary = result[mode].get("summary", result[mode])
+                table.add_row(
+                    image.name,
+                    mode,
+                    f"{summary['max_delta_e']:.2f}",
+                    f"{summary['mean_delta_e']:.2f}",
+                    f"{summary['mean_saturation_ratio']:.2f}",
+                )
+            with atomic_path(output, overwrite=True) as tmp:
+                tmp.write_text(
+                    json.dumps({"image": str(image), "layout": found, "analysis": result}, indent=2, default=float)
+                )
+            progress.advance(task)
+    _stdout().print(table)
+
+
+@app.command("report")
+def report_cmd(
+    calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Report folder (index.html and figures).")],
+    test: Annotated[
+        list[Path] | None, typer.Option(help="A raw image of the colour-wheel target (repeatable).")
+    ] = None,
+    layout: Annotated[Path | None, typer.Option(help="The target's layout (TARGET.json).")] = None,
+    cra: Annotated[
+        float | None, typer.Option(help="Chief ray angle of the lenslets at the sensor corner, degrees (for tilt).")
+    ] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing report.")] = False,
+) -> None:
+    """Write an HTML report: diagnostics with verdicts, maps, and before/after evidence from test images."""
+    from .calibration import load_calibration
+    from .report import write_report
+
+    cal = load_calibration(calibration)
+    target_layout = _read_json(layout) if layout is not None else None
+    with console.status("writing the report") as status:
+        index = write_report(
+            cal,
+            out,
+            test_images=test or (),
+            layout=target_layout,
+            cra_corner_deg=cra,
+            overwrite=overwrite,
+            progress=lambda text: status.update(f"report: {text}"),
+        )
+    console.print(f"wrote {index}")
+
+
+def _read_json(path: Path) -> dict:
+    import json
+
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise PicamcalError("no such file", path) from None
+    except (OSError, ValueError) as exc:
+        raise PicamcalError(f"not a readable JSON file ({exc})", path) from exc
 
 
 @app.command("demo")

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import PicamcalError
 from ..raw.model import RawImage, site_channels
-from ..sensors import LSC_GRIDS
+from ..sensors import LSC_GRIDS, SENSORS
 
 #: Largest gain each target's hardware can apply (exclusive).
 GAIN_LIMITS = {"bcm2835": 16.0, "pisp": 8.0}
@@ -71,7 +71,24 @@ class SensorMode:
         return self.crop[3] // self.binning
 
 
-def mode_for_image(sensor_size: tuple[int, int], image_size: tuple[int, int], crop=None) -> SensorMode:
+def full_sensor_size(raw: RawImage) -> tuple[int, int]:
+    """The full sensor size a raw image's lens shading refers to: the file's record, the registry's, or its own.
+
+    Examples
+    --------
+    >>> full_sensor_size(picamcal.read_raw("binned.dng"))  # doctest: +SKIP
+    (3280, 2464)
+    """
+    if raw.metadata.get("sensor_size"):
+        width, height = raw.metadata["sensor_size"]
+        return int(width), int(height)
+    sensor = SENSORS.get(raw.sensor or "")
+    return (sensor.width, sensor.height) if sensor else (raw.width, raw.height)
+
+
+def mode_for_image(
+    sensor_size: tuple[int, int], image_size: tuple[int, int], crop: tuple[int, int, int, int] | None = None
+) -> SensorMode:
     """The sensor mode an image of ``image_size`` comes from: full size, a binned full field, or an explicit crop.
 
     Raises
@@ -186,7 +203,7 @@ def _quantise(corner: np.ndarray, target: str) -> np.ndarray:
     lo, hi = corner.min(axis=0), corner.max(axis=0)
     scale = np.select([(lo >= 0.5) & (hi < 1.5), hi < 2.0, hi < 4.0], [1024.0, 512.0, 256.0], 128.0)
     offset = np.where(scale == 1024.0, -511.5, 0.5)
-    code = np.clip(np.round(offset + scale * corner), 0, 1023)
+    code = np.clip(np.floor(offset + scale * corner + 0.5), 0, 1023)  # std::round: halves away from zero
     return (code - offset) / scale
 
 
@@ -330,7 +347,8 @@ def apply_tuning(
     mode : SensorMode, optional
         Where the image lies on the sensor; default from ``sensor_size`` and the image size.
     sensor_size : (width, height), optional
-        The full sensor size; default the image size, or the registry's size for the raw's sensor.
+        The full sensor size; default :func:`full_sensor_size` (the file's record, the registry's size for
+        its sensor, or the image size).
     ct : float, optional
         Colour temperature for the tables (default the file's ``default_ct``, or 4500).
 
@@ -345,9 +363,7 @@ def apply_tuning(
     from ..correct import demosaic
 
     if mode is None:
-        if sensor_size is None:
-            sensor_size = (raw.width, raw.height)
-        mode = mode_for_image(sensor_size, (raw.width, raw.height))
+        mode = mode_for_image(sensor_size or full_sensor_size(raw), (raw.width, raw.height))
     black = tuning_black_level(tuning, raw.bit_depth)
     levels = np.asarray(raw.black_level if black is None else (black,) * 4, dtype=np.float32)
     gains = lens_shading_gains(tuning, raw.width, raw.height, mode=mode, ct=ct)
