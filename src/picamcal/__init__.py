@@ -7,7 +7,7 @@ Raspberry Pi camera module".
 from __future__ import annotations
 
 from ._version import __version__
-from .calibrate import calibrate
+from .calibrate import calibrate, calibrate_in_situ
 from .calibration import Calibration, load_calibration
 from .correct import correct
 from .errors import (
@@ -31,6 +31,7 @@ __all__ = [
     "RawImage",
     "__version__",
     "calibrate",
+    "calibrate_in_situ",
     "correct",
     "from_picamera2",
     "load_calibration",

@@ -230,11 +230,77 @@ def calibrate(
     """
     if bin_size < 2 or bin_size % 2:
         raise CalibrationInputError(f"bin size must be an even number of pixels >= 2, got {bin_size}")
-    loaded = [
-        _load(role, ref)
-        for role, ref in zip(REFERENCE_ROLES, (white, red, green, blue, black), strict=True)
-        if ref is not None
-    ]
+    named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
+    raws, infos = _load_consistent({role: ref for role, ref in named.items() if ref is not None})
+    site_responses = _binned_responses(raws, black is not None, bin_size, smoothing)
+    arrays = _derive(site_responses, raws[0].pattern, raws[1].source)
+    return Calibration(arrays, _meta(raws, infos, bin_size, smoothing, black is not None, arrays))
+
+
+def calibrate_in_situ(
+    white: RawLike,
+    unmixing_from: Calibration | str | os.PathLike,
+    black: RawLike | None = None,
+    *,
+    smoothing: float = 0.0,
+) -> Calibration:
+    """Combine a white image taken through the user's own optics with the unmixing measured in the jig.
+
+    The paper's recommended compromise: the white reference is specific to each optical system and easy
+    to take in situ (a bright-field microscope with the sample removed), while the colour crosstalk is a
+    property of the sensor under near-normal incidence, measured once in the calibration jig. The jig's
+    colour responses, normalised by its white, are kept exactly, so its crosstalk matrices ``M`` and
+    unmixing field ``U`` carry over; the flat field (``W``, ``LST``, ``Cb``) is the new white's.
+
+    Parameters
+    ----------
+    white : RawImage or path
+        The in-situ white reference, from the same sensor, size and Bayer order as the jig calibration.
+    unmixing_from : Calibration or path
+        A full calibration from the jig (:func:`calibrate`).
+    black : RawImage or path, optional
+        A dark frame at the in-situ white's settings.
+    smoothing : float
+        Gaussian smoothing of the new white, in bins.
+
+    Examples
+    --------
+    >>> jig = picamcal.load_calibration("jig.npz")  # doctest: +SKIP
+    >>> cal = calibrate_in_situ("microscope_white.dng", jig)  # doctest: +SKIP
+    """
+    from .calibration import load_calibration
+
+    jig = unmixing_from if isinstance(unmixing_from, Calibration) else load_calibration(unmixing_from)
+    named = {"white": white, "black": black}
+    raws, infos = _load_consistent({role: ref for role, ref in named.items() if ref is not None})
+    first = raws[0]
+    if (first.width, first.height) != (jig.width, jig.height):
+        problem = f"size {first.width}x{first.height}, the jig calibration is for {jig.width}x{jig.height}"
+    elif first.pattern != jig.pattern:
+        problem = f"Bayer pattern {first.pattern}, the jig calibration is for {jig.pattern}"
+    elif first.sensor and jig.sensor and first.sensor != jig.sensor:
+        problem = f"sensor {first.sensor}, the jig calibration is for {jig.sensor}"
+    else:
+        problem = ""
+    if problem:
+        raise CalibrationInputError(f"the white does not fit the jig calibration: {problem}", first.source)
+    new_white = _binned_responses(raws, black is not None, jig.bin_size, smoothing)[0]
+    jig_responses = jig.site_responses.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        colours = jig_responses[1:] / jig_responses[0] * new_white
+    site_responses = np.concatenate([new_white[None], colours])
+    arrays = _derive(site_responses, first.pattern, first.source)
+    info = {"role": "unmixing", "format": "picamcal-calibration", "created": jig.meta.get("created")}
+    if not isinstance(unmixing_from, Calibration):
+        info.update(name=Path(unmixing_from).name, sha256=_sha256(Path(unmixing_from)))
+    meta = _meta(raws, [*infos, info], jig.bin_size, smoothing, black is not None, arrays)
+    meta["in_situ"] = {"unmixing_from": info, "jig_inputs": [i.get("name") for i in jig.meta.get("inputs", [])]}
+    return Calibration(arrays, meta)
+
+
+def _load_consistent(named: dict[str, RawLike]) -> tuple[list[RawImage], list[dict]]:
+    """Read the references (white first) and check they share size and Bayer order."""
+    loaded = [_load(role, ref) for role, ref in named.items()]
     raws = [raw for raw, _ in loaded]
     first = raws[0]
     for raw in raws[1:]:
@@ -247,11 +313,16 @@ def calibrate(
             raise CalibrationInputError(
                 f"Bayer pattern {raw.pattern} differs from the white reference's {first.pattern}", raw.source
             )
+    return raws, [info for _, info in loaded]
+
+
+def _binned_responses(raws: list[RawImage], has_black: bool, bin_size: int, smoothing: float) -> np.ndarray:
+    """Black-subtracted per-site bin means of every reference but the black, white first (n, nby, nbx, 4)."""
+    first = raws[0]
     if bin_size > min(first.width, first.height):
         raise CalibrationInputError(f"bin size {bin_size} is larger than the image", first.source)
-
     binned = [bin_sites(raw.bayer, bin_size) for raw in raws]
-    if black is not None:
+    if has_black:
         black_sites = binned.pop()
         black_raw = raws[-1]
         if np.median(black_sites) >= np.median(binned[0]):
@@ -261,19 +332,22 @@ def calibrate(
                 black_raw.source,
             )
     else:
-        black_sites = np.stack([np.broadcast_to(np.asarray(r.black_level), binned[0].shape) for r in raws[:4]])
-    _check_white(first, black_sites[0] if black is None else black_sites)
+        black_sites = np.stack([np.broadcast_to(np.asarray(r.black_level), binned[0].shape) for r in raws])
+    _check_white(first, black_sites[0] if not has_black else black_sites)
     site_responses = np.stack(binned) - black_sites
     if smoothing > 0:
         site_responses = ndimage.gaussian_filter(site_responses, sigma=(0, smoothing, smoothing, 0), mode="nearest")
-
-    site_white = site_responses[0]
-    if np.any(site_white <= 0):
+    if np.any(site_responses[0] <= 0):
         raise CalibrationInputError(
-            f"white reference has {np.count_nonzero((site_white <= 0).any(-1))} bins with no signal above black",
+            f"white reference has {np.count_nonzero((site_responses[0] <= 0).any(-1))} bins with no signal above black",
             first.source,
         )
-    pattern = first.pattern
+    return site_responses
+
+
+def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dict[str, np.ndarray]:
+    """Every field of the calibration from the binned responses of the white, red, green and blue references."""
+    site_white = site_responses[0]
     # float32 is what the calibration stores, and inverting in it is several times faster.
     m = crosstalk_matrices(site_responses, pattern).astype(np.float32)
     pure, _ = invert_3x3(m)
@@ -285,7 +359,7 @@ def calibrate(
             f"the red, green and blue references do not separate the colours: {nbad} of {bad.size} bins have an "
             f"ill-conditioned crosstalk matrix (condition > {MAX_CONDITION:g}); check the illumination colours and the "
             "Bayer order (--pattern)",
-            raws[1].source,
+            colour_source,
         )
     if nbad:
         ys, xs = np.nonzero(bad)
@@ -293,27 +367,24 @@ def calibrate(
             f"{nbad} of {bad.size} bins have an ill-conditioned crosstalk matrix (condition > {MAX_CONDITION:g}), "
             f"in bins y {ys.min()}..{ys.max()}, x {xs.min()}..{xs.max()}; filled from their nearest good neighbours",
             PicamcalWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
         _fill_ill_conditioned([m, pure], bad)
         condition = np.where(bad, np.nan, condition)
         _fill_ill_conditioned([condition], bad)
-
     nby, nbx = site_white.shape[:2]
-    region = centre_region(nby, nbx)
-    m_centre = m[region[0] : region[1], region[2] : region[3]].reshape(-1, 3, 3).mean(axis=0)
+    y0, y1, x0, x1 = centre_region(nby, nbx)
+    m_centre = m[y0:y1, x0:x1].reshape(-1, 3, 3).mean(axis=0)
     cx, _ = invert_3x3(m_centre)
-    unmixing = m_centre @ pure
     channel_white = sites_to_channels(site_white, pattern)
     peak = channel_white.reshape(-1, 3).max(axis=0)
-
-    arrays = {
+    return {
         "site_responses": site_responses.astype(np.float32),
         "site_white": site_white.astype(np.float32),
         "white": channel_white.astype(np.float32),
         "lens_shading": (peak / channel_white).astype(np.float32),
         "crosstalk": m.astype(np.float32),
-        "unmixing": unmixing.astype(np.float32),
+        "unmixing": (m_centre @ pure).astype(np.float32),
         "pure_unmixing": pure.astype(np.float32),
         "condition_number": condition.astype(np.float32),
         "ill_conditioned": bad,
@@ -321,21 +392,25 @@ def calibrate(
         "centre_response": m_centre.astype(np.float64),
         "colour_response_inverse": cx.astype(np.float64),
     }
-    meta = {
+
+
+def _meta(raws: list[RawImage], infos: list[dict], bin_size: int, smoothing: float, black: bool, arrays: dict) -> dict:
+    first = raws[0]
+    nby, nbx = arrays["white"].shape[:2]
+    return {
         "software_version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "sensor": next((r.sensor for r in raws if r.sensor), None),
-        "pattern": pattern,
+        "pattern": first.pattern,
         "width": first.width,
         "height": first.height,
         "bin_size": bin_size,
         "black_level": list(first.black_level),
-        "black_frame": black is not None,
+        "black_frame": black,
         "white_level": first.white_level,
         "bit_depth": first.bit_depth,
         "smoothing": smoothing,
-        "centre_region": list(region),
-        "ill_conditioned_bins": nbad,
-        "inputs": [info for _, info in loaded],
+        "centre_region": list(centre_region(nby, nbx)),
+        "ill_conditioned_bins": int(np.count_nonzero(arrays["ill_conditioned"])),
+        "inputs": infos,
     }
-    return Calibration(arrays, meta)
