@@ -68,3 +68,31 @@ def test_in_situ_white_must_fit_the_jig(jig_and_optics):
         match=r"small\.dng: the white does not fit the jig calibration: size 320x240, .* is for 640x480",
     ):
         calibrate_in_situ(smaller, jig)
+
+
+def test_in_situ_from_the_command_line(tmp_path, jig_and_optics):
+    from picamcal import load_calibration
+    from picamcal.raw import write_dng
+    from test_cli import run
+
+    jig, optics_white, *_ = jig_and_optics
+    jig.save(tmp_path / "jig.npz")
+    write_dng(tmp_path / "white.dng", optics_white)
+    result = run(
+        "calibrate",
+        "--white",
+        str(tmp_path / "white.dng"),
+        "--unmixing-from",
+        str(tmp_path / "jig.npz"),
+        "--out",
+        str(tmp_path / "cal.npz"),
+    )
+    assert result.returncode == 0, result.stderr
+    np.testing.assert_allclose(load_calibration(tmp_path / "cal.npz").unmixing, jig.unmixing, atol=1e-5)
+    folder = tmp_path / "microscope"
+    folder.mkdir()
+    write_dng(folder / "white.dng", optics_white)
+    result = run(
+        "calibrate", str(folder), "--unmixing-from", str(tmp_path / "jig.npz"), "--out", str(tmp_path / "cal2.npz")
+    )
+    assert result.returncode == 0, result.stderr

@@ -110,34 +110,45 @@ def calibrate_cmd(
     green: Annotated[Path | None, typer.Option(help="Green reference raw file.")] = None,
     blue: Annotated[Path | None, typer.Option(help="Blue reference raw file.")] = None,
     black: Annotated[Path | None, typer.Option(help="Dark frame (optional).")] = None,
+    unmixing_from: Annotated[
+        Path | None,
+        typer.Option(help="In situ: take the unmixing from this jig calibration; only --white (and --black) needed."),
+    ] = None,
     bin_size: Annotated[int, typer.Option(help="Bin edge in sensor pixels (even).")] = 16,
     smoothing: Annotated[float, typer.Option(help="Gaussian smoothing of the fields, in bins (0 = none).")] = 0.0,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
-    """Measure the flat field and colour-unmixing field from reference images."""
-    from .calibrate import calibrate
+    """Measure the flat field and colour-unmixing field from reference images (or in situ, with --unmixing-from)."""
+    from .calibrate import calibrate, calibrate_in_situ
     from .references import find_references
 
     named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
-    refs = find_references(folder) if folder is not None else {}
+    refs = find_references(folder, need_colours=unmixing_from is None) if folder is not None else {}
     refs.update({role: path for role, path in named.items() if path is not None})
-    missing = [role for role in ("white", "red", "green", "blue") if role not in refs]
+    needed = ("white",) if unmixing_from is not None else ("white", "red", "green", "blue")
+    missing = [role for role in needed if role not in refs]
     if missing:
         raise typer.BadParameter(f"give a folder of references or --{' --'.join(missing)}")
     if out.exists() and not overwrite:
         raise OutputError("exists already (use --overwrite to replace it)", out)
-    if any(_same_file(out, p) for p in refs.values()):
+    inputs = [*refs.values(), *([unmixing_from] if unmixing_from else [])]
+    if any(_same_file(out, p) for p in inputs):
         raise OutputError("is one of the input files; choose another --out", out)
     read = _reader(pattern, black_level)
     with console.status("calibrating"):
-        cal = calibrate(**{role: read(path) for role, path in refs.items()}, bin_size=bin_size, smoothing=smoothing)
+        if unmixing_from is not None:
+            black_raw = read(refs["black"]) if "black" in refs else None
+            cal = calibrate_in_situ(read(refs["white"]), unmixing_from, black_raw, smoothing=smoothing)
+        else:
+            cal = calibrate(**{role: read(path) for role, path in refs.items()}, bin_size=bin_size, smoothing=smoothing)
         cal.save(out, overwrite=overwrite)
     console.print(
         f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
         f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, "
         f"worst noise penalty (centre mode) {float(cal.noise_penalty('centre').max()):.2f}"
+        + (f", unmixing from {unmixing_from.name}" if unmixing_from else "")
     )
 
 

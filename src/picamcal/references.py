@@ -36,8 +36,10 @@ def role_of(name: str) -> str | None:
     return found[0] if len(found) == 1 else None
 
 
-def find_references(folder: str | Path) -> dict[str, Path]:
+def find_references(folder: str | Path, *, need_colours: bool = True) -> dict[str, Path]:
     """Map each role to its file in a folder; white, red, green and blue are required, black optional.
+
+    With ``need_colours=False`` (an in-situ calibration) only the white is required.
 
     Raises
     ------
@@ -63,7 +65,7 @@ def find_references(folder: str | Path) -> dict[str, Path]:
             raise CalibrationInputError(
                 f"several files for the {role} reference ({names}); name them explicitly", folder
             )
-    missing = [role for role in ROLES[:4] if role not in found]
+    missing = [role for role in (ROLES[:4] if need_colours else ROLES[:1]) if role not in found]
     if missing:
         raise CalibrationInputError(
             f"no {', '.join(missing)} reference found (expected files named e.g. white.dng or *_r255_g0_b0.dng)", folder
