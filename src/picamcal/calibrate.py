@@ -11,7 +11,6 @@ the identity at the centre. Matrices act on column vectors: ``out = U @ rgb``.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import warnings
 from datetime import datetime, timezone
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from ._files import sha256_file
 from ._version import __version__
 from .bayer import bin_sites, sites_to_channels
 from .calibration import Calibration
@@ -128,14 +128,6 @@ def crosstalk_matrices(site_responses: np.ndarray, pattern: str) -> np.ndarray:
     return m * amounts[..., None, :]
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _load(role: str, ref: RawLike) -> tuple[RawImage, dict]:
     raw = ref if isinstance(ref, RawImage) else read_raw(ref)
     info: dict = {"role": role, "format": raw.metadata.get("format", "array")}
@@ -147,7 +139,7 @@ def _load(role: str, ref: RawLike) -> tuple[RawImage, dict]:
     info["clipped_fraction"] = float(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
     path = raw.metadata.get("path")
     if path and Path(path).is_file():
-        info.update(name=Path(path).name, sha256=_sha256(Path(path)))
+        info.update(name=Path(path).name, sha256=sha256_file(Path(path)))
     else:
         info["name"] = f"<{role} array>"
     return raw, info
@@ -292,7 +284,7 @@ def calibrate_in_situ(
     arrays = _derive(site_responses, first.pattern, first.source)
     info = {"role": "unmixing", "format": "picamcal-calibration", "created": jig.meta.get("created")}
     if not isinstance(unmixing_from, Calibration):
-        info.update(name=Path(unmixing_from).name, sha256=_sha256(Path(unmixing_from)))
+        info.update(name=Path(unmixing_from).name, sha256=sha256_file(Path(unmixing_from)))
     meta = _meta(raws, [*infos, info], jig.bin_size, smoothing, black is not None, arrays)
     meta["in_situ"] = {"unmixing_from": info, "jig_inputs": [i.get("name") for i in jig.meta.get("inputs", [])]}
     return Calibration(arrays, meta)

@@ -39,7 +39,8 @@ def role_of(name: str) -> str | None:
 def find_references(folder: str | Path, *, need_colours: bool = True) -> dict[str, Path]:
     """Map each role to its file in a folder; white, red, green and blue are required, black optional.
 
-    With ``need_colours=False`` (an in-situ calibration) only the white is required.
+    With ``need_colours=False`` (an in-situ calibration) only the white is required. A folder written by
+    ``picamcal acquire`` is read through its ``manifest.json``, which names each file's role.
 
     Raises
     ------
@@ -54,6 +55,10 @@ def find_references(folder: str | Path, *, need_colours: bool = True) -> dict[st
     folder = Path(folder)
     if not folder.is_dir():
         raise CalibrationInputError("no such folder of reference images", folder)
+    if need_colours and (folder / "manifest.json").is_file():
+        from .acquire.acquisition import read_manifest
+
+        return read_manifest(folder)
     found: dict[str, list[Path]] = {}
     for path in sorted(folder.iterdir()):
         role = role_of(path.name) if path.suffix.lower() in RAW_SUFFIXES else None

@@ -17,6 +17,7 @@ import numpy as np
 import tifffile
 
 from .._atomic import atomic_path
+from .._files import json_default
 from ..errors import RawFormatError
 from ..sensors import find_sensor_name
 from .model import PATTERNS, RawImage
@@ -159,7 +160,7 @@ def write_dng(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
         tags.append((_EXPOSURE_TIME, 5, 1, _rational(float(meta["exposure_time_s"])), True))
     if meta.get("analogue_gain"):
         tags.append((_ISO, 3, 1, round(100 * float(meta["analogue_gain"])), True))
-    description = json.dumps({_METADATA_KEY: {"sensor": raw.sensor, **meta}}, default=_jsonable)
+    description = json.dumps({_METADATA_KEY: {"sensor": raw.sensor, **meta}}, default=json_default)
     with atomic_path(path, overwrite=overwrite) as tmp:
         tifffile.imwrite(
             tmp,
@@ -173,11 +174,3 @@ def write_dng(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
             extratags=tags,
         )
     return path
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)

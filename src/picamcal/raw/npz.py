@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_path
+from .._files import json_default
 from ..errors import RawFormatError
-from .dng import _jsonable
 from .model import RawImage
 
 FORMAT_NAME = "picamcal-raw"
@@ -42,7 +42,7 @@ def write_npz(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
         "metadata": {k: v for k, v in raw.metadata.items() if k not in ("path", "format")},
     }
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
-        np.savez_compressed(f, bayer=raw.bayer, metadata=np.array(json.dumps(record, default=_jsonable)))
+        np.savez_compressed(f, bayer=raw.bayer, metadata=np.array(json.dumps(record, default=json_default)))
     return path
 
 

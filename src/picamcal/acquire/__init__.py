@@ -1,0 +1,1 @@
+"""Acquiring calibration references: cameras and illuminators behind small interfaces."""

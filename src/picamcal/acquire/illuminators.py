@@ -1,0 +1,231 @@
+"""Illuminators behind the :class:`~picamcal.acquire.base.Illuminator` interface (FORMATS.md section 7).
+
+``serial`` (the paper's Arduino, :mod:`picamcal.acquire.serial_illuminator`), ``gpio`` (a NeoPixel on a Pi
+pin through the CircuitPython NeoPixel library, an optional extra), ``manual`` (asks the user) and ``sim``
+(the light the simulated camera sees). :func:`open_illuminator` opens one from its command-line name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ..errors import PicamcalError
+from .base import Illuminator, IlluminatorError
+
+__all__ = [
+    "REFERENCE_LIGHTS",
+    "GpioIlluminator",
+    "ManualIlluminator",
+    "SimIlluminator",
+    "open_illuminator",
+]
+
+#: The LED setting (R, G, B, 0-255) of each reference illumination, in the order they are captured.
+REFERENCE_LIGHTS: dict[str, tuple[int, int, int]] = {
+    "white": (255, 255, 255),
+    "red": (255, 0, 0),
+    "green": (0, 255, 0),
+    "blue": (0, 0, 255),
+    "black": (0, 0, 0),
+}
+_NAMES = {rgb: name for name, rgb in REFERENCE_LIGHTS.items()}
+
+
+def _check_rgb(red: int, green: int, blue: int) -> tuple[int, int, int]:
+    rgb = (red, green, blue)
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 <= v <= 255 for v in rgb):
+        raise IlluminatorError(f"a colour is three whole numbers 0-255, got {rgb}")
+    return int(red), int(green), int(blue)
+
+
+class SimIlluminator:
+    """The light the simulated camera (:class:`~picamcal.acquire.cameras.SimCamera`) sees.
+
+    Attributes
+    ----------
+    rgb : (int, int, int)
+        The current LED setting; (0, 0, 0) at first and after :meth:`close`.
+
+    Examples
+    --------
+    >>> light = SimIlluminator()
+    >>> light.set_rgb(255, 0, 51)
+    >>> light.amounts.tolist()
+    [1.0, 0.0, 0.2]
+    """
+
+    def __init__(self) -> None:
+        self.rgb: tuple[int, int, int] = (0, 0, 0)
+
+    @property
+    def amounts(self) -> np.ndarray:
+        """The amounts of the red, green and blue primaries, ``rgb / 255`` (float64, shape (3,))."""
+        return np.asarray(self.rgb, dtype=np.float64) / 255.0
+
+    def set_rgb(self, red: int, green: int, blue: int) -> None:
+        """Set the LEDs."""
+        self.rgb = _check_rgb(red, green, blue)
+
+    def close(self) -> None:
+        """Turn the light off."""
+        self.rgb = (0, 0, 0)
+
+    def describe(self) -> dict[str, Any]:
+        """``{"kind": "sim"}``."""
+        return {"kind": "sim"}
+
+
+class ManualIlluminator:
+    """Asks the user to set each colour by hand and press Enter.
+
+    Parameters
+    ----------
+    input_fn : callable
+        Shows a prompt and waits for Enter (``input``).
+    output : callable
+        Prints a message (``print``).
+
+    Examples
+    --------
+    >>> light = ManualIlluminator(input_fn=lambda prompt: print(prompt) or "")
+    >>> light.set_rgb(255, 0, 0)
+    Set the light to red (255, 0, 0) and press Enter
+    >>> light.set_rgb(255, 0, 0)  # already red: no question
+    """
+
+    def __init__(self, input_fn: Callable[[str], Any] = input, output: Callable[[str], Any] = print) -> None:
+        self._input = input_fn
+        self._output = output
+        self.rgb: tuple[int, int, int] | None = None
+
+    def set_rgb(self, red: int, green: int, blue: int) -> None:
+        """Ask the user to set the colour, unless it is set already."""
+        rgb = _check_rgb(red, green, blue)
+        if rgb == self.rgb:
+            return
+        if rgb == (0, 0, 0):
+            question = f"Turn the light off {rgb} and press Enter"
+        else:
+            question = f"Set the light to {_NAMES.get(rgb, 'the colour')} {rgb} and press Enter"
+        try:
+            self._input(question)
+        except EOFError:
+            raise IlluminatorError("no answer (end of input) when asked to set the light") from None
+        self.rgb = rgb
+
+    def close(self) -> None:
+        """Remind the user to turn the light off."""
+        if self.rgb not in (None, (0, 0, 0)):
+            self._output("You can turn the light off now.")
+        self.rgb = None
+
+    def describe(self) -> dict[str, Any]:
+        """``{"kind": "manual"}``."""
+        return {"kind": "manual"}
+
+
+class GpioIlluminator:
+    """A NeoPixel (WS2812) driven from a Raspberry Pi pin with the CircuitPython NeoPixel library.
+
+    Parameters
+    ----------
+    pin : str
+        The ``board`` pin name: D18 (PWM, the default), D12, D21 or D10 (SPI, no root needed).
+    count : int
+        Number of pixels on the strip; all are set to the same colour.
+    pixel_order : str
+        The pixels' colour order as the library names it (``"GRB"`` for WS2812).
+
+    Raises
+    ------
+    IlluminatorError
+        The library is missing (install ``picamcal[pi]``), not on a Pi, no such pin, or the pixel
+        cannot be driven (PWM pins need root).
+
+    Examples
+    --------
+    >>> light = GpioIlluminator("D18")  # doctest: +SKIP
+    >>> light.set_rgb(255, 0, 0)  # doctest: +SKIP
+    """
+
+    def __init__(self, pin: str = "D18", *, count: int = 1, pixel_order: str = "GRB") -> None:
+        try:
+            import board
+            import neopixel
+        except ImportError:
+            raise IlluminatorError(
+                "the gpio illuminator needs the CircuitPython NeoPixel library: on a Raspberry Pi install picamcal[pi]"
+            ) from None
+        except (NotImplementedError, RuntimeError) as exc:
+            raise IlluminatorError(f"the gpio illuminator runs on a Raspberry Pi only ({exc})") from exc
+        self.pin = pin.upper()
+        board_pin = getattr(board, self.pin, None)
+        order = getattr(neopixel, pixel_order.upper(), None)
+        if board_pin is None:
+            raise IlluminatorError(f"the board has no pin {pin} (a NeoPixel works on D18, D12, D21 or D10)")
+        if order is None:
+            raise IlluminatorError(f"unknown NeoPixel colour order {pixel_order!r} (GRB, RGB, GRBW, ...)")
+        self.count = int(count)
+        self.pixel_order = pixel_order.upper()
+        try:
+            self._pixels = neopixel.NeoPixel(board_pin, self.count, brightness=1.0, auto_write=False, pixel_order=order)
+        except (RuntimeError, OSError, ValueError) as exc:
+            raise IlluminatorError(
+                f"cannot drive a NeoPixel on {self.pin} ({exc}): run as root for D18, D12 or D21, or use D10 (SPI)"
+            ) from exc
+
+    def set_rgb(self, red: int, green: int, blue: int) -> None:
+        """Set every pixel and send the data."""
+        rgb = _check_rgb(red, green, blue)
+        try:
+            self._pixels.fill(rgb)
+            self._pixels.show()
+        except (RuntimeError, OSError, ValueError) as exc:
+            raise IlluminatorError(f"the NeoPixel on {self.pin} stopped answering ({exc})") from exc
+
+    def close(self) -> None:
+        """Turn the pixels off and release the pin."""
+        try:
+            self._pixels.fill((0, 0, 0))
+            self._pixels.show()
+        finally:
+            self._pixels.deinit()
+
+    def describe(self) -> dict[str, Any]:
+        """Kind ``gpio``, pin, pixel count and colour order."""
+        return {"kind": "gpio", "pin": self.pin, "count": self.count, "pixel_order": self.pixel_order}
+
+
+def open_illuminator(spec: str) -> Illuminator:
+    """Open an illuminator named on the command line.
+
+    Parameters
+    ----------
+    spec : str
+        ``serial`` (find the Arduino) or ``serial:PORT``; ``gpio`` (pin D18) or ``gpio:PIN``; ``manual``;
+        ``sim``.
+
+    Raises
+    ------
+    PicamcalError
+        An unknown kind; :class:`IlluminatorError` when the device cannot be opened.
+
+    Examples
+    --------
+    >>> open_illuminator("sim").describe()
+    {'kind': 'sim'}
+    """
+    kind, colon, argument = spec.partition(":")
+    kind = kind.strip().lower()
+    if kind == "serial":
+        from .serial_illuminator import open_serial_illuminator
+
+        return open_serial_illuminator(spec)
+    if kind == "gpio":
+        return GpioIlluminator(argument or "D18")
+    if kind in ("manual", "sim") and not colon:
+        return ManualIlluminator() if kind == "manual" else SimIlluminator()
+    raise PicamcalError(f"unknown illuminator {spec!r} (expected serial, serial:PORT, gpio, gpio:PIN, manual or sim)")
