@@ -132,7 +132,8 @@ def _load(role: str, ref: RawLike) -> tuple[RawImage, dict]:
     raw = ref if isinstance(ref, RawImage) else read_raw(ref)
     info: dict = {"role": role, "format": raw.metadata.get("format", "array")}
     # How well exposed the reference is: the diagnostics judge clipping and under-exposure from these.
-    sample = raw.bayer[::4, ::4]
+    # Every fourth 2x2 block, so that all four Bayer sites are sampled.
+    sample = raw.bayer.reshape(raw.height // 2, 2, raw.width // 2, 2)[::4, :, ::4, :]
     black = float(np.median(raw.black_level))
     info["median_fraction"] = round(float((np.median(sample) - black) / (raw.white_level - black)), 5)
     info["p99_fraction"] = round(float((np.percentile(sample, 99.9) - black) / (raw.white_level - black)), 5)
