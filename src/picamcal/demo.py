@@ -19,6 +19,7 @@ from .calibration import MODES, Calibration
 from .correct import correct
 from .metrics import flatness, save_preview, wheel_figures
 from .raw import RawImage, read_raw
+from .report import write_report
 from .simulate import make_camera, simulate_references, simulate_run
 
 #: The steps run_demo reports, in order.
@@ -28,6 +29,7 @@ STEPS = (
     "calibrating",
     *(f"correcting the target ({mode})" for mode in MODES),
     "writing figures",
+    "writing the report",
 )
 
 
@@ -45,7 +47,8 @@ def run_demo(
 
     Writes into ``out_dir``: ``raw/`` (the simulated DNG files, layout and ground truth),
     ``calibration.npz``, ``target_<mode>.png`` previews (sRGB), ``lens_shading_legacy.npy`` (the legacy
-    firmware's table), ``tuning_<target>.json`` for each base tuning file given, and ``figures.json``.
+    firmware's table), ``tuning_<target>.json`` for each base tuning file given, ``figures.json`` and the
+    HTML report ``report/index.html``.
 
     Parameters
     ----------
@@ -111,7 +114,7 @@ def run_demo(
         }
         save_preview(out / f"target_{mode}.png", rgb)
 
-    step(STEPS[-1])
+    step(STEPS[-2])
     exports = _write_exports(cal, out, tuning_bases, check_white)
     figures = {
         "sensor": sensor,
@@ -130,6 +133,8 @@ def run_demo(
     }
     with atomic_path(out / "figures.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2))
+    step(STEPS[-1])
+    write_report(cal, out / "report", test_images=[target], overwrite=True)
     return figures
 
 

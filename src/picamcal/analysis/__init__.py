@@ -1,0 +1,1 @@
+"""Analyses of corrected images: finding and comparing the colour wheels of the test target, diagnostics."""

@@ -1,0 +1,267 @@
+"""Writing ``DIR/index.html`` and its figures (PNG files beside it), all or nothing.
+
+The report is built in a temporary folder beside ``DIR`` and renamed into place when complete, so a
+partially written report never remains. The page loads nothing from the network: figures are PNG files
+next to it, styles are inline.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from .._files import json_default
+from .._version import __version__
+from ..calibration import MODES, Calibration
+from ..errors import OutputError
+from ..raw import RawImage, read_raw
+
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; line-height: 1.45; }
+h1 { font-size: 1.6em; } h2 { border-bottom: 1px solid #ccc; padding-bottom: .2em; margin-top: 2em; }
+table { border-collapse: collapse; margin: 1em 0; } td, th { border: 1px solid #ccc; padding: .3em .6em; }
+th { background: #f3f3f3; text-align: left; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.pass { color: #1a7f37; font-weight: bold; } .warn { color: #b35900; font-weight: bold; }
+figure { margin: 1.5em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption { color: #555; font-size: .92em; } code { background: #f5f5f5; padding: 0 .2em; }
+"""
+
+#: After the page has loaded, record how many images rendered (the browser test reads it from the DOM).
+_LOAD_CHECK = """
+window.addEventListener("load", function () {
+  var images = Array.prototype.slice.call(document.images);
+  var loaded = images.filter(function (im) { return im.complete && im.naturalWidth > 0; }).length;
+  document.body.setAttribute("data-images", loaded + "/" + images.length);
+});
+"""
+
+_FIGURES = (
+    (
+        "lens_shading_maps",
+        "Flat field (lens shading) per channel",
+        "Gain that makes the white reference uniform, per colour channel, normalised to 1 at the brightest point.",
+    ),
+    (
+        "unmixing_grid",
+        "Colour-unmixing field",
+        "The 3 x 3 matrix U(x, y) that restores the colours of the sensor centre (rows: output channel, columns: input "
+        "channel). It is the identity at the centre and grows towards the edges, where the crosstalk is strongest.",
+    ),
+    (
+        "noise_penalty_maps",
+        "Noise penalty",
+        "Factor by which the correction multiplies read noise: for the vignetting correction alone and with unmixing.",
+    ),
+    (
+        "normalised_references",
+        "Normalised references",
+        "The white, red, green and blue references normalised as in the paper, with R, G, B sections through "
+        "the centre.",
+    ),
+    (
+        "vignetting_centre_plot",
+        "Centre of the vignetting",
+        "Where the white reference peaks, against the sensor centre: an offset means a tilted sensor or optics.",
+    ),
+    ("dust_map", "Dust and dirt", "Small-scale structure in the white reference; circles mark what was found."),
+)
+
+
+def _esc(value: Any) -> str:
+    return html.escape(str(value))
+
+
+def _prepare_target(out: Path, overwrite: bool) -> None:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise OutputError("exists and is not empty (use --overwrite to replace the report)", out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out.parent) from exc
+
+
+def _swap_into_place(build: Path, out: Path) -> None:
+    """Rename the finished report into place, replacing an old one only once the new one is complete."""
+    old = None
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        os.replace(out, old)
+    os.replace(build, out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True) if old.is_dir() else old.unlink(missing_ok=True)
+
+
+def _figures(cal: Calibration, folder: Path, step: Callable[[str], None]) -> list[tuple[str, str, str]]:
+    from ..analysis import figures
+
+    made = []
+    for name, title, caption in _FIGURES:
+        step(f"figure: {title.lower()}")
+        getattr(figures, name)(cal, folder / f"{name}.png")
+        made.append((f"{name}.png", title, caption))
+    return made
+
+
+def _test_image_section(
+    cal: Calibration, raw: RawImage, folder: Path, index: int, layout: dict | None
+) -> tuple[str, dict[str, Any]]:
+    from ..analysis.wheels import analyse, find_wheels, polar_plot, wheel_crops
+    from ..correct import correct
+    from ..metrics import save_preview
+
+    stem = f"test{index}"
+    images = {mode: correct(raw, cal, mode) for mode in MODES}
+    found = find_wheels(images["balance"], layout=layout)
+    result = analyse(images, found)
+    parts = [
+        f"<h3>{_esc(Path(raw.source).name)}</h3>",
+        "<table><tr><th>mode</th><th>corner CIEDE2000 max</th>"
+        "<th>CIEDE2000 mean</th><th>saturation vs centre</th></tr>",
+    ]
+    for mode in MODES:
+        summary = result[mode]["summary"] if "summary" in result[mode] else result[mode]
+        parts.append(
+            f"<tr><td>{mode}</td><td class='num'>{summary['max_delta_e']:.2f}</td>"
+            f"<td class='num'>{summary['mean_delta_e']:.2f}</td>"
+            f"<td class='num'>{summary['mean_saturation_ratio']:.2f}</td></tr>"
+        )
+    parts.append("</table>")
+    for mode in ("balance", "flat", "centre"):
+        save_preview(folder / f"{stem}_{mode}.png", images[mode], max_size=900)
+        polar_plot(result[mode], folder / f"{stem}_{mode}_polar.png", title=f"{mode}: hue and saturation")
+        wheel_crops(images[mode], found, folder / f"{stem}_{mode}_wheels.png")
+        parts.append(
+            f"<figure><img src='{stem}_{mode}.png' alt='{mode} image'><img src='{stem}_{mode}_wheels.png' "
+            f"alt='{mode} wheels'><img src='{stem}_{mode}_polar.png' alt='{mode} polar plot'>"
+            f"<figcaption>{_esc(mode)}: the image (sRGB preview), its colour wheels, and the hue (angle) and "
+            "saturation (radius) of each segment: centre wheel solid, the others dashed.</figcaption></figure>"
+        )
+    return "\n".join(parts), result
+
+
+def write_report(
+    calibration: Calibration,
+    out_dir: str | os.PathLike[str],
+    *,
+    test_images: Sequence[RawImage | str | os.PathLike[str]] = (),
+    layout: dict | None = None,
+    cra_corner_deg: float | None = None,
+    overwrite: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> Path:
+    """Write the calibration report: ``out_dir/index.html`` with its figures beside it.
+
+    Parameters
+    ----------
+    calibration : Calibration
+    out_dir : path
+        The report folder; refused if it exists and is not empty, unless ``overwrite``.
+    test_images : raw images or paths
+        Images of a colour-wheel target to show before and after correction, with polar plots.
+    layout : dict, optional
+        The target's layout (``picamcal target``); without it the wheels are found in the image.
+    cra_corner_deg : float, optional
+        Chief ray angle of the sensor's lenslets at the corner, to turn the vignetting offset into a tilt.
+    overwrite : bool
+        Replace an existing report (only once the new one is complete).
+    progress : callable, optional
+        Called with a description of each step.
+
+    Returns
+    -------
+    Path
+        The written ``index.html``.
+
+    Examples
+    --------
+    >>> write_report(load_calibration("cal.npz"), "report", test_images=["target.dng"])  # doctest: +SKIP
+    PosixPath('report/index.html')
+    """
+    from ..analysis.diagnostics import diagnose
+
+    step = progress or (lambda _: None)
+    out = Path(out_dir)
+    _prepare_target(out, overwrite)
+    raws = [image if isinstance(image, RawImage) else read_raw(image) for image in test_images]
+    for raw in raws:
+        calibration.check_compatible(raw)
+    build = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        step("diagnostics")
+        checks = [c.to_dict() for c in diagnose(calibration, cra_corner_deg=cra_corner_deg)]
+        figures = _figures(calibration, build, step)
+        sections, analyses = [], []
+        for index, raw in enumerate(raws):
+            step(f"test image {index + 1} of {len(raws)}")
+            section, result = _test_image_section(calibration, raw, build, index, layout)
+            sections.append(section)
+            analyses.append({"image": raw.source, "analysis": result})
+        page = _page(calibration, checks, figures, sections)
+        (build / "index.html").write_text(page, encoding="utf-8")
+        record = {"software_version": __version__, "checks": checks, "test_images": analyses}
+        (build / "report.json").write_text(json.dumps(record, indent=2, default=json_default))
+        step("finishing")
+        _swap_into_place(build, out)
+    except BaseException:
+        shutil.rmtree(build, ignore_errors=True)
+        raise
+    return out / "index.html"
+
+
+def _percent(fraction: float | None, decimals: int) -> str:
+    return "&ndash;" if fraction is None else f"{100 * fraction:.{decimals}f} %"
+
+
+def _page(cal: Calibration, checks: list[dict], figures: list[tuple[str, str, str]], tests: list[str]) -> str:
+    meta = cal.meta
+    inputs = "".join(
+        f"<tr><td>{_esc(i['role'])}</td><td><code>{_esc(i.get('name', ''))}</code></td><td>{_esc(i['format'])}</td>"
+        f"<td class='num'>{_percent(i.get('median_fraction'), 1)}</td>"
+        f"<td class='num'>{_percent(i.get('clipped_fraction'), 3)}</td>"
+        f"<td><code>{_esc(str(i.get('sha256', ''))[:16])}</code></td></tr>"
+        for i in meta.get("inputs", [])
+    )
+    verdicts = "".join(
+        f"<tr><td>{_esc(c['name'])}</td><td class='{_esc(c['verdict'])}'>{_esc(c['verdict'])}</td>"
+        f"<td>{_esc(c['summary'])}</td></tr>"
+        for c in checks
+    )
+    warned = sum(c["verdict"] != "pass" for c in checks)
+    figure_html = "".join(
+        f"<figure><img src='{_esc(src)}' alt='{_esc(title)}'><figcaption><b>{_esc(title)}.</b> "
+        f"{_esc(caption)}</figcaption></figure>"
+        for src, title, caption in figures
+    )
+    test_html = "<h2>Test images</h2>" + "".join(tests) if tests else ""
+    penalty = float(cal.noise_penalty("centre").max())
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<title>picamcal report: {_esc(cal.sensor or "camera")} {cal.width}x{cal.height}</title>
+<style>{_CSS}</style></head>
+<body>
+<h1>Calibration report: {_esc((cal.sensor or "unknown sensor").upper())}, {cal.width} x {cal.height}</h1>
+<p>Flat-field and colour-crosstalk calibration after Bowman, Vodenicharski, Collins and Stirling, <i>Flat-field and
+colour correction for the Raspberry Pi camera module</i>. Bayer order {_esc(cal.pattern)}, {cal.white.shape[1]} x
+{cal.white.shape[0]} bins of {cal.bin_size} pixels, smoothing {_esc(meta.get("smoothing", 0))} bins, created
+{_esc(meta.get("created", "?"))} with picamcal {_esc(meta.get("software_version", "?"))}; report written
+{datetime.now(timezone.utc).isoformat(timespec="seconds")} with picamcal {__version__}.
+Worst noise penalty of the recommended (centre) correction: {penalty:.2f}.</p>
+<h2>Verdicts</h2>
+<p>{len(checks) - warned} of {len(checks)} checks pass{"" if not warned else f"; {warned} need a look"}.</p>
+<table><tr><th>check</th><th>verdict</th><th>what was measured</th></tr>{verdicts}</table>
+<h2>Reference images</h2>
+<table><tr><th>role</th><th>file</th><th>format</th><th>median exposure</th><th>clipped</th><th>sha256</th></tr>
+{inputs}</table>
+<h2>Diagnostics</h2>
+{figure_html}
+{test_html}
+<script>{_LOAD_CHECK}</script>
+</body></html>
+"""
