@@ -108,8 +108,11 @@ def test_correct_writes_float_tiffs_and_never_overwrites(sim, cal_path, tmp_path
     white = tifffile.imread(out / "white.tiff")
     assert white.dtype == np.float32 and white.shape == (240, 320, 3)
     assert abs(float(np.median(white)) - 1.0) < 0.01  # the calibration's white maps to 1.0
+    # Run again: the existing output is kept and skipped (an interrupted batch resumes the same way).
+    before_again = (out / "white.tiff").stat().st_mtime_ns
     again = run("correct", str(cal_path), str(sim / "white.dng"), "--out", str(out))
-    assert_bad_input(again, "white.tiff", "exists already")
+    assert again.returncode == 0 and "skipped 1" in again.stderr + again.stdout
+    assert (out / "white.tiff").stat().st_mtime_ns == before_again
     result = run(
         "correct", str(cal_path), str(sim / "white.dng"), "--out", str(out), "--overwrite", "--binned", "--mode", "flat"
     )

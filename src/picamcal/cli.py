@@ -11,7 +11,6 @@ import warnings
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -155,8 +154,13 @@ def calibrate_cmd(
 @app.command("correct")
 def correct_cmd(
     calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
-    images: Annotated[list[Path], typer.Argument(help="Raw images to correct.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder for <stem>.tiff files.")],
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Images, folders of them, or glob patterns (quoted: for very many files).")
+    ],
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder for <stem>.tiff files.")] = None,
+    zarr_path: Annotated[
+        Path | None, typer.Option("--zarr", help="Write one OME-Zarr stack (t, c, y, x) instead of TIFF files.")
+    ] = None,
     mode: Annotated[str, typer.Option(help=MODE_HELP)] = "centre",
     binned: Annotated[bool, typer.Option(help="Write the bin-resolution image instead of full resolution.")] = False,
     processed: Annotated[
@@ -181,68 +185,99 @@ def correct_cmd(
     ] = None,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
-    overwrite: Annotated[bool, typer.Option(help="Replace existing output files.")] = False,
+    workers: Annotated[
+        int | None, typer.Option(help="Worker processes (default: one per core; 0: no pool, work in this process).")
+    ] = None,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Run on this dask.distributed scheduler instead (tcp://host:port).")
+    ] = None,
+    compression: Annotated[str | None, typer.Option(help="Compress the outputs: zstd.")] = None,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace existing outputs (without it they are skipped: an interrupted batch resumes).")
+    ] = False,
 ) -> None:
-    """Correct raw (or, with --processed, ISP-processed) images; write float32 linear RGB TIFF files."""
-    from .calibration import MODES, load_calibration
-    from .correct import correct
-    from .output import write_rgb_tiff
-    from .raw.processed import linearise, read_processed
+    """Correct raw (or, with --processed, ISP-processed) images in parallel; write float32 linear RGB TIFF files.
+
+    Existing outputs are skipped, so running the same command again resumes an interrupted batch. A file
+    that fails is reported at the end and does not stop the others (exit status 1).
+    """
+    import time
+
+    from rich.progress import TimeRemainingColumn
+
+    from .batch import run_batch
+    from .calibration import MODES
 
     if mode not in MODES:
         raise typer.BadParameter(f"{mode!r} is not one of {', '.join(MODES)}", param_hint="--mode")
     if (white_image is not None or tuning_file is not None or input_encoding is not None) and not processed:
         raise typer.BadParameter("--white, --tuning and --input-encoding go with --processed")
-    if input_encoding is None:
-        input_encoding = f"tuning:{tuning_file}" if tuning_file is not None else "srgb"
     if processed and binned:
         raise typer.BadParameter("--binned is for raw images")
-    linearise(np.zeros(1), input_encoding)  # a bad encoding fails here, before any work
-    cal = load_calibration(calibration)
-    read = _reader(pattern, black_level)
-    white = read_processed(white_image, input_encoding) if white_image is not None else None
-    tuning = _load_tuning(tuning_file) if tuning_file is not None else None
-    targets = [out / f"{image.stem}.tiff" for image in images]
-    stems = [t.name for t in targets]
-    for image, target in zip(images, targets, strict=True):
-        if stems.count(target.name) > 1:
-            raise OutputError(f"two inputs would both write {target.name}; correct them separately", image)
-        if any(_same_file(target, src) for src in images):
-            raise OutputError("output would replace an input file; choose another --out", target)
-        if target.exists() and not overwrite:
-            raise OutputError("exists already (use --overwrite to replace it)", target)
-    out.mkdir(parents=True, exist_ok=True)
-    with _progress() as progress:
-        task = progress.add_task(f"correcting ({mode})", total=len(images))
-        for image, target in zip(images, targets, strict=True):
-            if processed:
-                rgb = _correct_processed(read_processed(image, input_encoding), cal, mode, white, tuning)
-            else:
-                rgb = correct(read(image), cal, mode=mode, binned=binned)
-            info = {"source": image.name, "calibration": calibration.name, "mode": mode, "binned": binned}
-            if processed:
-                info["input_encoding"] = input_encoding
-            write_rgb_tiff(target, rgb, info, overwrite=overwrite)
-            progress.advance(task)
-    console.print(f"wrote {len(images)} image(s) to {out}")
+    if (out is None) == (zarr_path is None):
+        raise typer.BadParameter("give --out FOLDER for TIFF files, or --zarr STACK.zarr for one stack")
+    if workers is not None and (workers < 0 or scheduler is not None):
+        raise typer.BadParameter("0 or more; not with --scheduler (the cluster has its own)", param_hint="--workers")
+    progress = Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[rate]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    )
+    bar: dict = {}
+
+    def show(finished: int, total: int) -> None:
+        if not bar:  # the bar appears when the work starts, after every check has passed
+            bar.update(task=progress.add_task(f"correcting ({mode})", total=total, rate=""), start=time.monotonic())
+            progress.start()
+        elapsed = time.monotonic() - bar["start"]
+        progress.update(bar["task"], completed=finished, rate=f"{finished / elapsed:.1f} files/s" if finished else "")
+
+    try:
+        result = run_batch(
+            calibration,
+            inputs,
+            out,
+            zarr_path=zarr_path,
+            mode=mode,
+            binned=binned,
+            workers=workers,
+            scheduler=scheduler,
+            overwrite=overwrite,
+            compression=compression,
+            processed=processed,
+            input_encoding=input_encoding,
+            pattern=pattern.upper() if pattern is not None else None,
+            black_level=_black_level(black_level),
+            white=white_image,
+            tuning=tuning_file,
+            progress=show,
+        )
+    finally:
+        progress.stop()
+    elapsed = time.monotonic() - bar["start"] if bar else 0.0
+    rate = f" ({len(result.done) / elapsed:.1f} files/s)" if result.done and elapsed > 0 else ""
+    console.print(
+        f"wrote {len(result.done)} image(s) to {zarr_path or out}{rate}; skipped {len(result.skipped)} "
+        f"(done already); failed {len(result.failed)}",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
+    for path, reason in result.failed:
+        console.print(f"picamcal: failed: {path}: {reason}", markup=False, highlight=False, soft_wrap=True)
+    if result.failed:
+        raise typer.Exit(1)
 
 
 def _load_tuning(path: Path) -> dict:
     from .export.tuning import load_tuning
 
     return load_tuning(path)
-
-
-def _correct_processed(image, cal, mode: str, white, tuning: dict | None):
-    """correct_processed with the ISP's lens shading and CCM taken from the tuning file the camera ran with."""
-    from .correct import correct_processed
-    from .export.isp import alsc_section, isp_gains_for_image, tuning_ccm
-
-    if tuning is None:
-        return correct_processed(image, cal, mode, white=white)
-    ct = float(alsc_section(tuning).get("default_ct", 4500))
-    gains = isp_gains_for_image(tuning, (cal.width, cal.height), (image.width, image.height), ct=ct)
-    return correct_processed(image, cal, mode, white=white, ccm=tuning_ccm(tuning, ct), isp_gains=gains)
 
 
 def _parse_size(size: str | None) -> tuple[int, int] | None:
@@ -594,6 +629,48 @@ def _read_json(path: Path) -> dict:
         raise PicamcalError(f"not a readable JSON file ({exc})", path) from exc
 
 
+@app.command("acquire")
+def acquire_cmd(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder of the run: created, or resumed if it holds one.")],
+    camera: Annotated[str, typer.Option(help="picamera2 (picamera2:N for camera N) or sim.")] = "picamera2",
+    illuminator: Annotated[
+        str, typer.Option(help="serial (serial:PORT), gpio (gpio:PIN, default D18), manual or sim.")
+    ] = "serial",
+    extra: Annotated[
+        list[str] | None,
+        typer.Option(help="An extra image at the same settings, e.g. target; asked for before each (repeatable)."),
+    ] = None,
+    target_fraction: Annotated[
+        float, typer.Option(help="Where the white's 99.9th percentile should land, as a fraction of full scale.")
+    ] = 0.8,
+    settle: Annotated[float, typer.Option(help="Seconds to wait after changing the light.")] = 0.5,
+    max_exposure: Annotated[float, typer.Option(help="Longest exposure time to use, in seconds.")] = 1.0,
+    sensor: Annotated[str, typer.Option(help="Simulated sensor (--camera sim).")] = "imx219",
+    size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed of the simulated camera.")] = 0,
+) -> None:
+    """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black and extras."""
+    from .acquire.acquisition import acquire, open_rig
+
+    def show(message: str, done: int, total: int) -> None:
+        # One line per step rather than a live bar, so it never draws over the prompts.
+        console.print(f"[{done}/{total}] {message}")
+
+    with open_rig(camera, illuminator, sensor=sensor, size=_parse_size(size), seed=seed, prompt=input) as rig:
+        manifest = acquire(
+            rig.camera,
+            rig.illuminator,
+            out,
+            extras=extra or (),
+            target_fraction=target_fraction,
+            settle_s=settle,
+            max_exposure_s=max_exposure,
+            prompt=rig.prompt,
+            progress=show,
+        )
+    console.print(f"wrote {manifest}; calibrate with: picamcal calibrate {out}")
+
+
 @app.command("demo")
 def demo_cmd(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("picamcal-demo"),
@@ -653,6 +730,7 @@ def demo_cmd(
     for name, record in figures["exports"].items():
         stdout.print(f"  {name}: an independent white is flat to {record['white_flatness_percent']:.2f} % with it")
     stdout.print(f"Calibration, previews (target_<mode>.png) and figures.json are in {out}/")
+    stdout.print(f"The report: {out / 'report' / 'index.html'}")
 
 
 def _warn(message, category, filename, lineno, file=None, line=None) -> None:

@@ -1,0 +1,940 @@
+"""Correct many images at once: a process pool on this machine, or an existing dask.distributed cluster.
+
+One function, :func:`run_batch`, takes files, folders or glob patterns (:func:`expand_inputs`) and
+writes one float32 linear RGB TIFF per image (as ``picamcal correct`` always did), or one chunked
+OME-Zarr stack. The same per-file function runs in a local process pool or on a dask cluster, so the
+outputs are the same bytes either way.
+
+What it guarantees:
+
+- **Bounded memory.** At most two tasks per worker are in flight; inputs are read by the workers, one at
+  a time, never all up front; a task returns a few words, not its image.
+- **Calibration loaded once per worker** (a module-level cache keyed by the file's path and SHA-256).
+- **No half-written output.** Every TIFF is written to a temporary name and renamed; zarr chunks likewise
+  (zarr's local store writes each chunk to a temporary name). Temporaries left by a killed batch are
+  removed by the next run.
+- **Resumable.** Existing outputs are skipped unless ``overwrite``; the zarr stack records its finished
+  frames in its attributes. Running the same command again finishes an interrupted batch.
+- **A bad file does not stop the others.** Its reason is in :attr:`BatchResult.failed`. Problems with
+  the whole batch (the calibration, the options, the output folder, the scheduler) raise a
+  :class:`~picamcal.errors.PicamcalError` before any work.
+
+The zarr stack follows OME-NGFF 0.5 (zarr format 3): a group whose ``ome`` attributes hold one
+``multiscales`` entry (one resolution level, axes ``t, c, y, x``) and ``omero`` channel hints; the
+array ``0`` has shape (frames, 3, H, W) float32, chunks of one frame and channel and at most
+1024 x 1024 pixels, so no chunk is shared by two frames and concurrent workers never write the same
+chunk. Frames not (yet) written read as NaN.
+"""
+
+from __future__ import annotations
+
+import errno
+import glob
+import hashlib
+import json
+import multiprocessing
+import os
+import re
+import socket
+import tempfile
+import time
+import warnings
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+
+from .calibration import MODES, Calibration, load_calibration
+from .correct import correct, correct_processed
+from .errors import OutputError, PicamcalError, PicamcalWarning, RawFormatError
+from .output import write_rgb_tiff
+from .raw import PATTERNS, read_raw
+from .raw.processed import ProcessedImage, linearise, read_processed
+
+#: Suffixes of the files taken from a folder of raw images (DNG, legacy JPEG+raw, picamera2 .npy, picamcal .npz).
+RAW_SUFFIXES = (".dng", ".jpg", ".jpeg", ".npy", ".npz")
+#: Suffixes of the files taken from a folder of processed images (``processed=True``).
+PROCESSED_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+#: Output compressions: ``zstd`` (TIFF: with the floating-point predictor; needs imagecodecs).
+COMPRESSIONS = ("zstd",)
+#: The OME-NGFF version of the zarr stack's metadata.
+OME_NGFF_VERSION = "0.5"
+
+_GLOB_CHARS = re.compile(r"[*?[]")
+#: Temporary names of picamcal._atomic.atomic_path: ".<stem>.<8 random characters>.tmp<suffix>".
+_ATOMIC_TEMPORARY = re.compile(r"^\.(?P<stem>.+)\.[a-z0-9_]{8}\.tmp\.tiff$")
+_PROBE_PREFIX = ".picamcal-probe."
+#: errno values that mean the output place itself is unusable: every further file would fail the same way.
+_PLACE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+_ZARR_TILE = 1024
+_RECORD_INTERVAL_S = 1.0
+
+
+@dataclass
+class BatchResult:
+    """What a batch did, each list in input order.
+
+    Attributes
+    ----------
+    done : list of Path
+        Inputs corrected and written by this run.
+    skipped : list of Path
+        Inputs whose output existed already (written by an earlier, perhaps interrupted, run).
+    failed : list of (Path, str)
+        Inputs that could not be corrected, with the reason in one line.
+    """
+
+    done: list[Path] = field(default_factory=list)
+    skipped: list[Path] = field(default_factory=list)
+    failed: list[tuple[Path, str]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """Everything a worker needs besides the file: small and picklable (sent with every task)."""
+
+    calibration: str  # absolute path
+    calibration_sha256: str
+    mode: str
+    binned: bool
+    processed: bool
+    input_encoding: str  # as given: recorded in the outputs' metadata
+    decode: str  # the same encoding with an absolute tuning path, for workers with another working folder
+    pattern: str | None
+    black_level: tuple[float, ...] | None
+    white: str | None
+    tuning: str | None
+    compression: str | None
+    overwrite: bool
+    zarr_array: str | None  # absolute path of the stack's array, or None for TIFF files
+
+
+@dataclass(frozen=True)
+class _Job:
+    index: int  # position in the inputs; the frame number in a zarr stack
+    source: str  # absolute path
+    target: str | None  # absolute TIFF path, None for a zarr frame
+
+
+@dataclass(frozen=True)
+class _Outcome:
+    index: int
+    error: str | None = None
+    place_error: str | None = None  # the output place is unusable (disk full, read-only): stop the batch
+    warnings: tuple[str, ...] = ()
+
+
+# ------------------------------------------------------------------------------------------------ inputs
+def expand_inputs(items: Iterable[str | os.PathLike[str]], suffixes: Sequence[str] = RAW_SUFFIXES) -> list[Path]:
+    """Turn files, folders and glob patterns into a list of files, in order, without duplicates.
+
+    A file is taken as it is. A folder gives its files whose suffix is one of ``suffixes`` (any case;
+    not its sub-folders, not hidden files), sorted by name. A glob pattern (``*``, ``?``, ``[``; ``**``
+    crosses folders) gives its matches sorted, folders among them expanded as folders: useful when the
+    shell cannot expand it (too many files, or quoted). A file reached twice is kept the first time.
+
+    Parameters
+    ----------
+    items : iterable of path-like
+        Files, folders or glob patterns.
+    suffixes : sequence of str
+        Suffixes taken from folders: :data:`RAW_SUFFIXES` or :data:`PROCESSED_SUFFIXES`.
+
+    Returns
+    -------
+    list of Path
+
+    Raises
+    ------
+    PicamcalError
+        An item does not exist, a pattern matches nothing, or a folder holds no such file.
+
+    Examples
+    --------
+    >>> expand_inputs(["run1", "extra/*.dng", "run1/target.dng"])  # doctest: +SKIP
+    [PosixPath('run1/black.dng'), ..., PosixPath('run1/white.dng'), PosixPath('extra/a.dng')]
+    """
+    wanted = tuple(s.lower() for s in suffixes)
+    found: list[Path] = []
+    seen: set[Path] = set()
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            files = _folder_files(path, wanted)
+        elif path.exists():
+            files = [path]
+        elif _GLOB_CHARS.search(str(item)):
+            files = []
+            for match in sorted(glob.glob(str(item), recursive=True)):
+                files.extend(_folder_files(Path(match), wanted) if Path(match).is_dir() else [Path(match)])
+            if not files:
+                raise PicamcalError("no files match this pattern", item)
+        else:
+            raise PicamcalError("no such file or folder", item)
+        for file in files:
+            key = file.resolve()
+            if key not in seen:
+                seen.add(key)
+                found.append(file)
+    return found
+
+
+def _folder_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    files = sorted(
+        p for p in folder.iterdir() if p.suffix.lower() in suffixes and not p.name.startswith(".") and p.is_file()
+    )
+    if not files:
+        raise PicamcalError(f"no {', '.join(suffixes)} files in this folder", folder)
+    return files
+
+
+# ------------------------------------------------------------------------------------------------ the batch
+def run_batch(
+    calibration_path: str | os.PathLike[str],
+    inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    out_dir: str | os.PathLike[str] | None = None,
+    *,
+    mode: str = "centre",
+    binned: bool = False,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    overwrite: bool = False,
+    compression: str | None = None,
+    zarr_path: str | os.PathLike[str] | None = None,
+    processed: bool = False,
+    input_encoding: str | None = None,
+    pattern: str | None = None,
+    black_level: float | Sequence[float] | None = None,
+    white: str | os.PathLike[str] | None = None,
+    tuning: str | os.PathLike[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    scheduler_timeout: float = 10.0,
+) -> BatchResult:
+    """Correct many images in parallel; write ``out_dir/<stem>.tiff`` for each, or one zarr stack.
+
+    Everything about the batch as a whole is checked before any work: the options, the calibration, the
+    inputs, that the calibration fits the first image, the scheduler, and that the output place can be
+    written (a probe file the size of one output, removed again). After that a file that fails is
+    recorded in :attr:`BatchResult.failed` and the others go on; only an output place that becomes
+    unusable (disk full, read-only) stops the batch, with an :class:`~picamcal.errors.OutputError`.
+
+    Parameters
+    ----------
+    calibration_path : path-like
+        Calibration file (.npz) from :meth:`picamcal.Calibration.save`.
+    inputs : path-like or iterable of path-like
+        Files, folders or glob patterns (:func:`expand_inputs`; folders give :data:`RAW_SUFFIXES` files,
+        or :data:`PROCESSED_SUFFIXES` ones with ``processed``).
+    out_dir : path-like, optional
+        Folder for ``<stem>.tiff`` files (float32 linear RGB, metadata as :func:`picamcal.output.write_rgb_tiff`).
+        Give either this or ``zarr_path``.
+    mode : {"centre", "flat", "pure", "balance"}
+        Correction mode (:func:`picamcal.correct`).
+    binned : bool
+        Write the bin-resolution image (raw inputs only).
+    workers : int, optional
+        Local worker processes; default one per available core (and no pool for a single file); 0 works in
+        this process, without a pool. Each worker loads the calibration once.
+    scheduler : str, optional
+        Address of a running dask.distributed scheduler (``tcp://host:port``) to run on instead. Its
+        workers need the calibration, inputs and output place at the same paths (a shared filesystem).
+    overwrite : bool
+        Replace existing outputs; otherwise they are skipped, which is how an interrupted batch resumes.
+        When every output exists already there is nothing to do and that is an ``OutputError``.
+    compression : {None, "zstd"}
+        Compress TIFF files (zstd with the floating-point predictor; needs imagecodecs) or zarr chunks.
+    zarr_path : path-like, optional
+        Write one OME-Zarr stack here instead of TIFF files (see the module docstring).
+    processed : bool
+        The inputs are ISP-processed images (JPEG, PNG, TIFF), corrected with
+        :func:`picamcal.correct.correct_processed`.
+    input_encoding : str, optional
+        With ``processed``: how to undo the tone curve (:func:`picamcal.raw.processed.linearise`);
+        default the ``tuning`` file's curve if given, else ``srgb``.
+    pattern, black_level : optional
+        Override the raw files' Bayer order and black level (:func:`picamcal.read_raw`).
+    white : path-like, optional
+        With ``processed``: a processed white reference (residual flat field).
+    tuning : path-like, optional
+        With ``processed``: the libcamera tuning file the camera ran with (its lens shading and CCM).
+    progress : callable, optional
+        Called as ``progress(finished, total)`` when the work starts and after each file, ``total``
+        counting the files to do (not the skipped ones).
+    scheduler_timeout : float
+        Seconds to wait for the scheduler (and for it to have a worker).
+
+    Returns
+    -------
+    BatchResult
+
+    Raises
+    ------
+    PicamcalError
+        Before any work, for anything wrong with the batch as a whole; ``OutputError`` if the output place
+        cannot be written, at the start or when it fills up (the message says how far the batch got).
+
+    Examples
+    --------
+    >>> result = run_batch("cal.npz", ["run1/*.dng"], "corrected", workers=4)  # doctest: +SKIP
+    >>> len(result.done), result.failed  # doctest: +SKIP
+    (12, [])
+    >>> run_batch("cal.npz", ["run1"], zarr_path="run1.zarr", scheduler="tcp://10.0.0.2:8786")  # doctest: +SKIP
+    """
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}: choose one of {', '.join(MODES)}")
+    if (out_dir is None) == (zarr_path is None):
+        raise ValueError("give either out_dir (TIFF files) or zarr_path (one stack)")
+    if processed and binned:
+        raise ValueError("binned is for raw images")
+    if not processed and (white is not None or tuning is not None or input_encoding is not None):
+        raise ValueError("white, tuning and input_encoding go with processed")
+    if workers is not None and workers < 0:
+        raise ValueError("workers must be 0 or more")
+    if compression is not None and compression not in COMPRESSIONS:
+        raise PicamcalError(f"unknown compression {compression!r} (expected one of {', '.join(COMPRESSIONS)})")
+    if pattern is not None and pattern not in PATTERNS:
+        raise PicamcalError(f"unknown Bayer pattern {pattern!r} (expected one of {', '.join(PATTERNS)})")
+    if input_encoding is None:
+        input_encoding = f"tuning:{tuning}" if tuning is not None else "srgb"
+    decode = input_encoding
+    if input_encoding.startswith("tuning:"):  # absolute, for workers with another working folder
+        decode = f"tuning:{Path(input_encoding.removeprefix('tuning:')).absolute()}"
+    linearise(np.zeros(1), decode)  # a bad encoding fails here, before any work
+    if compression is not None and zarr_path is None:
+        _require_imagecodecs()
+
+    cal = load_calibration(calibration_path)
+    if processed:
+        _check_processed_references(white, tuning, decode)
+    settings = _Settings(
+        calibration=str(Path(calibration_path).absolute()),
+        calibration_sha256=_sha256(Path(calibration_path)),
+        mode=mode,
+        binned=binned,
+        processed=processed,
+        input_encoding=input_encoding,
+        decode=decode,
+        pattern=pattern,
+        black_level=None if black_level is None else tuple(np.atleast_1d(black_level).astype(float).tolist()),
+        white=None if white is None else str(Path(white).absolute()),
+        tuning=None if tuning is None else str(Path(tuning).absolute()),
+        compression=compression,
+        overwrite=overwrite,
+        zarr_array=None if zarr_path is None else str(Path(zarr_path).absolute() / "0"),
+    )
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    sources = expand_inputs(inputs, PROCESSED_SUFFIXES if processed else RAW_SUFFIXES)
+    if zarr_path is None:
+        jobs, skipped = _plan_tiffs(sources, Path(out_dir), overwrite)
+        stack = None
+    else:
+        stack = _ZarrStack(Path(zarr_path), sources, settings)
+        jobs, skipped = stack.plan(overwrite)
+    place = Path(zarr_path if zarr_path is not None else out_dir)
+    if not jobs:  # everything done already: a finished batch run again has nothing to do
+        return BatchResult(done=[], skipped=skipped, failed=[])
+    frame_shape = _preflight(cal, sources, jobs, settings)
+
+    client = _connect(scheduler, settings, scheduler_timeout) if scheduler is not None else None
+    try:
+        if stack is not None:
+            stack.prepare(frame_shape, cal.bin_size if binned else 1, compression)
+        else:
+            _prepare_folder(place, jobs, _frame_bytes(frame_shape))
+        if client is not None:
+            runner: _InProcess | _Pool | _Dask = _Dask(settings, client)
+        elif workers == 0 or (workers is None and len(jobs) == 1):  # a pool for one file is only overhead
+            runner = _InProcess(settings)
+        else:
+            runner = _Pool(settings, max(1, min(workers or _available_cores(), len(jobs))))
+        result = BatchResult(skipped=skipped)
+        place_error = _drive(runner, jobs, sources, result, stack, progress)
+    finally:
+        if client is not None:
+            client.close()
+    order = {path: i for i, path in enumerate(sources)}
+    result.done.sort(key=order.__getitem__)
+    result.failed.sort(key=lambda item: order[item[0]])
+    if place_error is not None:
+        raise OutputError(
+            f"{place_error}; stopped after {len(result.done)} of {len(jobs)} files (run again to resume)", place
+        )
+    return result
+
+
+def _require_imagecodecs() -> None:
+    try:
+        import imagecodecs
+    except ImportError:
+        raise PicamcalError("zstd compression of TIFF files needs the imagecodecs package") from None
+    if not imagecodecs.ZSTD.available:
+        raise PicamcalError("this imagecodecs was built without zstd")
+
+
+def _check_processed_references(white: Any, tuning: Any, decode: str) -> None:
+    """Read the white reference and tuning file once here, so that a bad one fails before any work."""
+    if white is not None:
+        read_processed(white, decode)
+    if tuning is not None:
+        from .export.tuning import load_tuning
+
+        load_tuning(tuning)
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _plan_tiffs(sources: list[Path], out_dir: Path, overwrite: bool) -> tuple[list[_Job], list[Path]]:
+    """One job per input whose TIFF is still to write; refuse name clashes and outputs that would replace an input."""
+    inputs = {source.resolve() for source in sources}
+    writers: dict[str, Path] = {}
+    jobs, skipped = [], []
+    for index, source in enumerate(sources):
+        target = out_dir / f"{source.stem}.tiff"
+        if target.name in writers:
+            raise OutputError(f"two inputs would both write {target.name}; correct them separately", source)
+        writers[target.name] = source
+        if target.resolve() in inputs:
+            raise OutputError("output would replace an input file; choose another --out", target)
+        if target.exists() and not overwrite:
+            skipped.append(source)
+        else:
+            jobs.append(_Job(index, str(source.absolute()), str(target.absolute())))
+    return jobs, skipped
+
+
+def _preflight(cal: Calibration, sources: list[Path], jobs: list[_Job], settings: _Settings) -> tuple[int, ...]:
+    """Check that the calibration fits the first raw image (else nothing fits), and find the frames' shape.
+
+    A first image that cannot be read is not the batch's fault: it fails later like any other file.
+    """
+    if settings.processed:
+        for job in jobs:  # processed images have no size of their own to check against; find the first readable
+            try:
+                image = read_processed(sources[job.index], settings.decode)
+            except PicamcalError:
+                continue
+            return image.rgb.shape
+        return (cal.height, cal.width, 3)
+    try:
+        raw = read_raw(sources[jobs[0].index], pattern=settings.pattern, black_level=settings.black_level, verify=False)
+    except RawFormatError:
+        pass
+    else:
+        cal.check_compatible(raw)
+    return (*cal.white.shape[:2], 3) if settings.binned else (cal.height, cal.width, 3)
+
+
+def _frame_bytes(shape: Sequence[int]) -> int:
+    return int(np.prod(shape)) * 4
+
+
+def _prepare_folder(out_dir: Path, jobs: list[_Job], frame_bytes: int) -> None:
+    """Create the output folder, check it takes one output, and remove temporaries a killed run left."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError("exists and is not a folder", out_dir) from None
+    except OSError as exc:
+        raise OutputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from exc
+    _probe(out_dir, frame_bytes)
+    stems = {Path(job.target).stem for job in jobs if job.target is not None}
+    for entry in os.scandir(out_dir):
+        match = _ATOMIC_TEMPORARY.match(entry.name)
+        if (match and match["stem"] in stems) or entry.name.startswith(_PROBE_PREFIX):
+            Path(entry.path).unlink(missing_ok=True)
+
+
+def _probe(folder: Path, nbytes: int) -> None:
+    """Write (reserve) one output's worth of bytes in ``folder`` and remove it: read-only or full fails here."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=_PROBE_PREFIX, dir=folder)
+    except OSError as exc:
+        raise OutputError(f"cannot write here: {exc.strerror or exc}", folder) from exc
+    try:
+        if hasattr(os, "posix_fallocate"):
+            try:
+                os.posix_fallocate(fd, 0, max(nbytes, 1))
+            except OSError as exc:
+                # Filesystems without fallocate say EOPNOTSUPP or EINVAL: then only the writes will tell.
+                if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+                    raise OutputError(
+                        f"no room for one output ({nbytes / 1e6:.1f} MB): {exc.strerror or exc}", folder
+                    ) from exc
+    finally:
+        os.close(fd)
+        os.unlink(name)
+
+
+# ------------------------------------------------------------------------------------------------ zarr
+class _ZarrStack:
+    """The OME-Zarr stack: planning (which frames are done), creation, and the record of finished frames.
+
+    Only this process writes the group's attributes; workers write only their frames' chunks.
+    """
+
+    def __init__(self, path: Path, sources: list[Path], settings: _Settings) -> None:
+        self.path = path
+        self.sources = [str(s.absolute()) for s in sources]
+        self.settings = settings
+        self.signature = {
+            "calibration_sha256": settings.calibration_sha256,
+            "mode": settings.mode,
+            "binned": settings.binned,
+            "processed": settings.processed,
+            "input_encoding": settings.input_encoding if settings.processed else None,
+            "pattern": settings.pattern,
+            "black_level": list(settings.black_level) if settings.black_level else None,
+            "white": settings.white,
+            "tuning": settings.tuning,
+        }
+        self.done: set[int] = set()
+        self.resuming = False
+        self.recorded_at = 0.0
+        self.group: Any = None
+
+    def _existing_record(self) -> dict[str, Any] | None:
+        try:
+            return json.loads((self.path / "zarr.json").read_text())["attributes"]["picamcal"]
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+    def plan(self, overwrite: bool) -> tuple[list[_Job], list[Path]]:
+        _require_zarr()
+        if self.path.exists():
+            if not self.path.is_dir():
+                raise OutputError("exists and is not a zarr store (a folder)", self.path)
+            record = self._existing_record()
+            if record is None and any(self.path.iterdir()):
+                raise OutputError("exists and is not a picamcal zarr stack; choose another --zarr", self.path)
+            if record is not None and not overwrite:
+                if record.get("sources") != self.sources or record.get("settings") != self.signature:
+                    raise OutputError(
+                        "holds a stack of other inputs or settings (use --overwrite to replace it)", self.path
+                    )
+                self.done = {int(i) for i in record.get("done", [])}
+                self.resuming = True
+        jobs = [_Job(i, s, None) for i, s in enumerate(self.sources) if i not in self.done]
+        skipped = [Path(s) for i, s in enumerate(self.sources) if i in self.done]
+        return jobs, skipped
+
+    def prepare(self, frame_shape: tuple[int, ...], scale: int, compression: str | None) -> None:
+        import zarr
+
+        height, width = frame_shape[:2]
+        try:
+            if self.resuming:
+                self.group = zarr.open_group(self.path, mode="r+")
+                for partial in self.path.rglob("*.partial"):  # a chunk being written when a run was killed
+                    partial.unlink(missing_ok=True)
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.group = zarr.open_group(self.path, mode="w", zarr_format=3)
+                self.group.create_array(
+                    "0",
+                    shape=(len(self.sources), 3, height, width),
+                    chunks=(1, 1, min(height, _ZARR_TILE), min(width, _ZARR_TILE)),
+                    dtype="float32",
+                    fill_value=np.nan,
+                    compressors=zarr.codecs.ZstdCodec() if compression == "zstd" else None,
+                    dimension_names=["t", "c", "y", "x"],
+                )
+                self.group.attrs.update({"ome": _ome_metadata(scale), "picamcal": self._record()})
+        except OSError as exc:
+            raise OutputError(f"cannot write here: {exc.strerror or exc}", self.path) from exc
+        _probe(self.path, _frame_bytes(frame_shape))
+
+    def _record(self) -> dict[str, Any]:
+        return {
+            "calibration": Path(self.settings.calibration).name,
+            "settings": self.signature,
+            "sources": self.sources,
+            "done": sorted(self.done),
+        }
+
+    def finished(self, index: int) -> None:
+        self.done.add(index)
+        if time.monotonic() - self.recorded_at > _RECORD_INTERVAL_S:
+            self.write_record()
+
+    def write_record(self) -> None:
+        """Record the finished frames (zarr rewrites the group's zarr.json atomically: temporary name, rename)."""
+        try:
+            self.group.attrs.update({"picamcal": self._record()})
+        except OSError as exc:
+            raise OutputError(f"cannot record the finished frames: {exc.strerror or exc}", self.path) from exc
+        self.recorded_at = time.monotonic()
+
+
+def _require_zarr() -> None:
+    try:
+        import zarr
+    except ImportError:
+        raise PicamcalError("zarr output needs the zarr package (version 3)") from None
+    if int(zarr.__version__.split(".")[0]) < 3:
+        raise PicamcalError(f"zarr output needs zarr 3 or later (this is {zarr.__version__})")
+
+
+def _ome_metadata(scale: int) -> dict[str, Any]:
+    """OME-NGFF 0.5 ``ome`` attributes: one multiscale level ``0`` with axes t, c, y, x, and RGB channel hints."""
+    colours = {"R": "FF0000", "G": "00FF00", "B": "0000FF"}
+    return {
+        "version": OME_NGFF_VERSION,
+        "multiscales": [
+            {
+                "name": "picamcal",
+                "axes": [
+                    {"name": "t", "type": "time"},
+                    {"name": "c", "type": "channel"},
+                    {"name": "y", "type": "space"},
+                    {"name": "x", "type": "space"},
+                ],
+                "datasets": [
+                    {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1.0, 1.0, scale, scale]}]}
+                ],
+            }
+        ],
+        "omero": {
+            "channels": [
+                {"label": label, "color": colour, "active": True, "window": {"min": 0, "max": 1, "start": 0, "end": 1}}
+                for label, colour in colours.items()
+            ],
+            "rdefs": {"model": "color"},
+        },
+    }
+
+
+# ------------------------------------------------------------------------------------------------ running
+def _available_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def _pool_context() -> multiprocessing.context.BaseContext:
+    """forkserver where there is one: workers start clean (fork would copy this process's threads and locks,
+    unsafe with numba, zarr's event loop or a GUI), and fast (forked from a server that preloaded picamcal)."""
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        context = multiprocessing.get_context("forkserver")
+        # The demosaicing library's import (it brings colour-science) is most of a worker's start-up.
+        context.set_forkserver_preload(["picamcal.batch", "colour_demosaicing"])
+        return context
+    return multiprocessing.get_context("spawn")
+
+
+class _InProcess:
+    """``workers=0``: each job runs here, at once, when it is submitted."""
+
+    window = 1
+
+    def __init__(self, settings: _Settings) -> None:
+        self.settings = settings
+
+    def submit(self, job: _Job) -> Future:
+        future: Future = Future()
+        future.set_result(_process(self.settings, job))
+        return future
+
+    def finished(self, futures: list[Future]) -> Iterable[Future]:
+        return futures
+
+    def close(self) -> None:
+        pass
+
+
+class _Pool:
+    """A local process pool; replaced when a worker dies (out of memory, killed), and the files it held fail."""
+
+    def __init__(self, settings: _Settings, size: int) -> None:
+        self.settings = settings
+        self.size = size
+        self.window = 2 * size
+        self.context = _pool_context()
+        self.executor = self._executor()
+
+    def _executor(self) -> ProcessPoolExecutor:
+        threads = max(1, _available_cores() // self.size)
+        return ProcessPoolExecutor(self.size, mp_context=self.context, initializer=_init_worker, initargs=(threads,))
+
+    def submit(self, job: _Job) -> Future:
+        try:
+            return self.executor.submit(_process, self.settings, job)
+        except BrokenProcessPool:
+            self.executor.shutdown(wait=False, cancel_futures=True)
+            self.executor = self._executor()
+            return self.executor.submit(_process, self.settings, job)
+
+    def finished(self, futures: list[Future]) -> Iterable[Future]:
+        return wait(futures, return_when=FIRST_COMPLETED).done
+
+    def close(self) -> None:
+        self.executor.shutdown(wait=True, cancel_futures=True)
+
+
+def _init_worker(threads: int) -> None:
+    """Share the cores among the workers: numba's parallel kernels (imported later, on first use) would
+    otherwise start a thread per core in every worker."""
+    os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+
+
+class _Dask:
+    """The same jobs on a dask.distributed cluster (the caller connects and closes the client)."""
+
+    def __init__(self, settings: _Settings, client: Any) -> None:
+        from distributed import as_completed
+
+        self.settings = settings
+        self.client = client
+        self.window = 2 * max(1, sum(client.nthreads().values()))
+        self.completed = as_completed(loop=client.loop)
+
+    def submit(self, job: _Job) -> Any:
+        future = self.client.submit(_process, self.settings, job, pure=False)
+        self.completed.add(future)
+        return future
+
+    def finished(self, futures: list[Any]) -> Iterable[Any]:
+        return self.completed.next_batch(block=True)
+
+    def close(self) -> None:
+        pass
+
+
+def _drive(
+    runner: _InProcess | _Pool | _Dask,
+    jobs: list[_Job],
+    sources: list[Path],
+    result: BatchResult,
+    stack: _ZarrStack | None,
+    progress: Callable[[int, int], None] | None,
+) -> str | None:
+    """Run the jobs, submitting as others finish so that at most ``runner.window`` are in flight; record each
+    outcome. Returns why the output place became unusable, if it did (then no more jobs were started)."""
+    queue = iter(jobs)
+    in_flight: dict[Any, _Job] = {}
+    count = 0
+    place_error = None
+    if progress is not None:
+        progress(0, len(jobs))
+    try:
+        while True:
+            while place_error is None and len(in_flight) < runner.window and (job := next(queue, None)) is not None:
+                in_flight[runner.submit(job)] = job
+            if not in_flight:
+                return place_error
+            for future in runner.finished(list(in_flight)):
+                job = in_flight.pop(future)
+                outcome = _outcome_of(future, job)
+                source = sources[job.index]
+                for message in outcome.warnings:
+                    warnings.warn(message.replace(job.source, str(source), 1), PicamcalWarning, stacklevel=2)
+                if outcome.error is None:
+                    result.done.append(source)
+                    if stack is not None:
+                        stack.finished(job.index)
+                else:
+                    result.failed.append((source, outcome.error))
+                    place_error = place_error or outcome.place_error
+                count += 1
+                if progress is not None:
+                    progress(count, len(jobs))
+    finally:
+        runner.close()
+        if stack is not None:
+            stack.write_record()
+
+
+def _outcome_of(future: Any, job: _Job) -> _Outcome:
+    """The task's outcome; a task that died with its worker (or was lost by the cluster) is a failure."""
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        return _Outcome(job.index, "its worker process died (out of memory, or killed)")
+    except Exception as exc:
+        return _Outcome(job.index, f"the task was lost ({type(exc).__name__}: {exc})")
+
+
+def _connect(address: str, settings: _Settings, timeout: float) -> Any:
+    """A client of the scheduler at ``address``, checked: reachable, with workers that can read the calibration."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise PicamcalError("--scheduler needs the dask.distributed package") from None
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        protocol, location = parse_address(address)
+        if protocol == "tcp":  # a refused connection is certain at once; the client would retry until its timeout
+            socket.create_connection(parse_host_port(location), timeout=timeout).close()
+        client = Client(address, timeout=timeout, set_as_default=False)
+    except (OSError, ValueError, TypeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise PicamcalError(f"cannot reach the dask scheduler ({reason})", address) from None
+    try:
+        try:
+            client.wait_for_workers(1, timeout=timeout)
+        except (TimeoutError, OSError):
+            raise PicamcalError(f"the dask cluster has no workers (waited {timeout:g} s)", address) from None
+        for worker, problem in client.run(_check_worker, settings).items():
+            if problem is not None:
+                raise PicamcalError(
+                    f"dask worker {worker} cannot use the calibration ({problem}); the workers need the same "
+                    "files at the same paths",
+                    settings.calibration,
+                )
+    except BaseException:
+        client.close()
+        raise
+    return client
+
+
+def _check_worker(settings: _Settings) -> str | None:
+    """Run on each dask worker before any work: load (and cache) the calibration."""
+    try:
+        _calibration(settings)
+    except PicamcalError as exc:
+        return exc.problem
+    return None
+
+
+# ------------------------------------------------------------------------------------------------ the workers
+#: Per worker process: what was loaded once (calibration, white reference, tuning), keyed by what identifies it.
+_CACHE: dict[tuple, Any] = {}
+
+
+def _cached(key: tuple, load: Callable[[], Any]) -> Any:
+    if key not in _CACHE:
+        if len(_CACHE) > 8:  # a long-lived dask worker serving many batches
+            _CACHE.clear()
+        _CACHE[key] = load()
+    return _CACHE[key]
+
+
+def _calibration(settings: _Settings) -> Calibration:
+    def load() -> Calibration:
+        path = Path(settings.calibration)
+        if not path.is_file():
+            raise PicamcalError("no such calibration file", path)
+        if _sha256(path) != settings.calibration_sha256:
+            raise PicamcalError("is not the calibration the batch started with (it changed, or is another file)", path)
+        return load_calibration(path)
+
+    return _cached(("calibration", settings.calibration, settings.calibration_sha256), load)
+
+
+def _process(settings: _Settings, job: _Job) -> _Outcome:
+    """Correct one file and write its output: the task every worker runs (a top-level function, picklable).
+
+    Never raises for a problem with the file: the outcome says what went wrong, in one line.
+    """
+    place_error = None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            _write(settings, job, _correct_file(settings, Path(job.source)))
+            error = None
+        except PicamcalError as exc:
+            error = exc.problem if exc.path == job.source else str(exc)
+            cause = exc.__cause__
+            if isinstance(exc, OutputError) and isinstance(cause, OSError) and cause.errno in _PLACE_ERRORS:
+                place_error = exc.problem
+        except Exception as exc:  # a surprise in one file must not stop the others
+            error = f"{type(exc).__name__}: {exc}"
+    messages = tuple(str(w.message) for w in caught if issubclass(w.category, PicamcalWarning))
+    return _Outcome(job.index, error, place_error, messages)
+
+
+def _correct_file(settings: _Settings, source: Path) -> np.ndarray:
+    cal = _calibration(settings)
+    if settings.processed:
+        return _correct_processed(read_processed(source, settings.decode), cal, settings)
+    raw = read_raw(source, pattern=settings.pattern, black_level=settings.black_level)
+    return correct(raw, cal, mode=settings.mode, binned=settings.binned)
+
+
+def _correct_processed(image: ProcessedImage, cal: Calibration, settings: _Settings) -> np.ndarray:
+    """correct_processed, with the ISP's lens shading and CCM taken from the tuning file the camera ran with."""
+    white = None
+    if settings.white is not None:
+        white = _cached(
+            ("white", settings.white, settings.decode), lambda: read_processed(settings.white, settings.decode)
+        )
+    if settings.tuning is None:
+        return correct_processed(image, cal, settings.mode, white=white)
+    from .export.isp import alsc_section, isp_gains_for_image, tuning_ccm
+    from .export.tuning import load_tuning
+
+    tuning = _cached(("tuning", settings.tuning), lambda: load_tuning(settings.tuning))
+    ct = float(alsc_section(tuning).get("default_ct", 4500))
+    gains = isp_gains_for_image(tuning, (cal.width, cal.height), (image.width, image.height), ct=ct)
+    return correct_processed(image, cal, settings.mode, white=white, ccm=tuning_ccm(tuning, ct), isp_gains=gains)
+
+
+def _write(settings: _Settings, job: _Job, rgb: np.ndarray) -> None:
+    if settings.zarr_array is not None:
+        _write_frame(settings.zarr_array, job, rgb)
+        return
+    info: dict[str, Any] = {
+        "source": Path(job.source).name,
+        "calibration": Path(settings.calibration).name,
+        "mode": settings.mode,
+        "binned": settings.binned,
+    }
+    if settings.processed:
+        info["input_encoding"] = settings.input_encoding
+    if settings.compression is None:
+        write_rgb_tiff(job.target, rgb, info, overwrite=settings.overwrite)
+    else:
+        _write_compressed_tiff(Path(job.target), rgb, info, settings)
+
+
+def _write_compressed_tiff(path: Path, rgb: np.ndarray, info: dict[str, Any], settings: _Settings) -> None:
+    """write_rgb_tiff's file, compressed (zstd, floating-point predictor: lossless)."""
+    from ._atomic import atomic_path
+
+    with atomic_path(path, overwrite=settings.overwrite) as tmp:
+        tifffile.imwrite(
+            tmp,
+            np.ascontiguousarray(rgb, dtype=np.float32),
+            photometric="rgb",
+            description=json.dumps({"picamcal": info}),
+            software="picamcal",
+            metadata=None,
+            compression=settings.compression,
+            predictor=True,
+        )
+
+
+def _write_frame(array_path: str, job: _Job, rgb: np.ndarray) -> None:
+    import zarr
+
+    array = zarr.open_array(array_path, mode="r+")
+    frame = np.moveaxis(np.asarray(rgb, dtype=np.float32), -1, 0)
+    if frame.shape != array.shape[1:]:
+        raise PicamcalError(
+            f"is {frame.shape[2]}x{frame.shape[1]}, the stack's frames are {array.shape[3]}x{array.shape[2]}",
+            job.source,
+        )
+    try:
+        array[job.index] = frame
+    except OSError as exc:
+        raise OutputError(f"cannot write frame {job.index}: {exc.strerror or exc}", Path(array_path).parent) from exc
+
+
+__all__ = [
+    "COMPRESSIONS",
+    "OME_NGFF_VERSION",
+    "PROCESSED_SUFFIXES",
+    "RAW_SUFFIXES",
+    "BatchResult",
+    "expand_inputs",
+    "run_batch",
+]

@@ -1,0 +1,301 @@
+"""Batches: inputs, process pool and dask cluster, resuming, bad files, unwritable outputs, zarr stacks."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from picamcal import OutputError, PicamcalError, calibrate, read_raw
+from picamcal.batch import expand_inputs, run_batch
+from picamcal.raw import write_dng
+from picamcal.simulate import make_camera, simulate_run, simulate_target
+
+SIZE = (320, 240)
+
+
+def cli(*args: str) -> list[str]:
+    return [sys.executable, "-c", "from picamcal.cli import main; main()", *args]
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(cli(*args), capture_output=True, text=True, timeout=300)
+
+
+def outputs(folder: Path) -> list[Path]:
+    """The TIFF files in a folder, not temporaries (hidden: ``.<stem>.<random>.tmp.tiff``)."""
+    return [p for p in folder.glob("*.tiff") if not p.name.startswith(".")]
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def write_frames(folder: Path, count: int, first_seed: int = 0) -> list[Path]:
+    """Simulated target frames, each with its own noise."""
+    folder.mkdir(parents=True)
+    camera = make_camera("imx219", size=SIZE)
+    paths = []
+    for i in range(count):
+        raw, _ = simulate_target(camera, seed=first_seed + i)
+        paths.append(folder / f"f{i:02d}.dng")
+        write_dng(paths[-1], raw)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> dict[str, Path]:
+    """A calibration, ten frames, and their outputs from a plain serial run (the reference for every other run)."""
+    root = tmp_path_factory.mktemp("batch")
+    refs = simulate_run(root / "refs", "imx219", size=SIZE, seed=3)
+    cal = calibrate(**{role: read_raw(refs[role]) for role in ("white", "red", "green", "blue", "black")})
+    cal.save(root / "cal.npz")
+    write_frames(root / "frames", 10)
+    result = run_batch(root / "cal.npz", [root / "frames"], root / "reference", workers=0)
+    assert len(result.done) == 10 and not result.failed
+    return {"cal": root / "cal.npz", "frames": root / "frames", "reference": root / "reference"}
+
+
+# ---------------------------------------------------------------------------------------------- inputs
+def test_expand_inputs_takes_files_folders_and_patterns_in_order_without_duplicates(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for name in ("run/b.dng", "run/a.DNG", "run/c.npz", "run/notes.txt", "run/.hidden.dng", "run/sub/d.dng", "x.jpg"):
+        Path(name).parent.mkdir(parents=True, exist_ok=True)
+        Path(name).write_bytes(b"")
+    assert expand_inputs(["run"]) == [Path("run/a.DNG"), Path("run/b.dng"), Path("run/c.npz")]
+    assert expand_inputs(["x.jpg", "run/*.dng", "run", "./run/b.dng"]) == [
+        Path("x.jpg"),
+        Path("run/b.dng"),  # the pattern is case-sensitive, as the shell's
+        Path("run/a.DNG"),
+        Path("run/c.npz"),
+    ]
+    assert expand_inputs(["run/**/*.dng"]) == [Path("run/b.dng"), Path("run/sub/d.dng")]
+    assert expand_inputs(["run/su?"]) == [Path("run/sub/d.dng")]  # a pattern matching a folder gives its files
+    assert expand_inputs(["run/notes.txt"]) == [Path("run/notes.txt")]  # a file named is taken as it is
+    assert expand_inputs(["x.jpg"], suffixes=(".png",)) == [Path("x.jpg")]
+    with pytest.raises(PicamcalError, match=r"^nope\.dng: no such file or folder$"):
+        expand_inputs(["x.jpg", "nope.dng"])
+    with pytest.raises(PicamcalError, match=r"^run/\*\.tiff: no files match this pattern$"):
+        expand_inputs(["run/*.tiff"])
+    with pytest.raises(PicamcalError, match=r"^run/sub: no \.png files in this folder$"):
+        expand_inputs(["run/sub"], suffixes=(".png",))
+
+
+# ---------------------------------------------------------------------------------------------- pool and dask
+def test_process_pool_and_dask_cluster_write_the_same_bytes_as_a_serial_run(data, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    pool = run_batch(data["cal"], [data["frames"]], tmp_path / "pool", workers=2)
+    assert len(pool.done) == 10 and pool.skipped == [] and pool.failed == []
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cluster:
+        seen = []
+        dask = run_batch(
+            data["cal"],
+            [data["frames"]],
+            tmp_path / "dask",
+            scheduler=cluster.scheduler_address,
+            progress=lambda finished, total: seen.append((finished, total)),
+        )
+    assert dask.done == pool.done == sorted(data["frames"].iterdir())
+    assert seen == [(i, 10) for i in range(11)]
+    reference = snapshot(data["reference"])
+    assert snapshot(tmp_path / "pool") == reference  # byte for byte: the metadata holds no time stamps
+    assert snapshot(tmp_path / "dask") == reference
+    description = json.loads(tifffile.TiffFile(tmp_path / "dask" / "f00.tiff").pages[0].description)
+    assert description == {
+        "picamcal": {"source": "f00.dng", "calibration": "cal.npz", "mode": "centre", "binned": False}
+    }
+
+
+# ---------------------------------------------------------------------------------------------- resuming
+def test_a_killed_batch_resumes_where_it_stopped(data, tmp_path):
+    frames = write_frames(tmp_path / "frames", 24, first_seed=100)
+    reference = tmp_path / "reference"
+    run_batch(data["cal"], frames, reference, workers=0)
+    out = tmp_path / "out"
+    # The whole process group (the command, the fork server, the worker) dies at once, as in a power cut.
+    process = subprocess.Popen(
+        cli("correct", str(data["cal"]), str(tmp_path / "frames"), "--out", str(out), "--workers", "1"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None and len(outputs(out)) < 3:
+        time.sleep(0.005)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    time.sleep(0.2)  # let the kernel finish off the other processes of the group
+    finished = {p.name: p.stat().st_mtime_ns for p in outputs(out)}
+    assert 3 <= len(finished) < 24, "the batch was not stopped half-way"
+    for name in finished:  # an output is complete or absent, never half-written
+        assert (out / name).read_bytes() == (reference / name).read_bytes()
+
+    result = run("correct", str(data["cal"]), str(tmp_path / "frames"), "--out", str(out), "--workers", "1")
+    assert result.returncode == 0, result.stderr
+    assert f"wrote {24 - len(finished)} image(s)" in result.stderr
+    assert f"skipped {len(finished)} (done already)" in result.stderr
+    assert {name: (out / name).stat().st_mtime_ns for name in finished} == finished  # not written again
+    assert snapshot(out) == snapshot(reference)  # and no temporary file is left
+
+
+def test_a_finished_batch_has_nothing_to_do(data, tmp_path):
+    out = tmp_path / "out"
+    run_batch(data["cal"], [data["frames"] / "f00.dng", data["frames"] / "f01.dng"], out, workers=0)
+    with pytest.raises(OutputError, match="all 2 outputs exist already"):
+        run_batch(data["cal"], [data["frames"] / "f00.dng", data["frames"] / "f01.dng"], out, workers=0)
+    again = run_batch(data["cal"], [data["frames"] / "f00.dng"], out, workers=0, overwrite=True)
+    assert again.done == [data["frames"] / "f00.dng"]
+
+
+# ---------------------------------------------------------------------------------------------- bad input
+def test_a_corrupt_file_is_reported_and_the_others_finish(data, tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for path in sorted(data["frames"].iterdir()):
+        (frames / path.name).write_bytes(path.read_bytes())
+    (frames / "f05.dng").write_bytes((frames / "f05.dng").read_bytes()[:2000])  # truncated mid-file
+    out = tmp_path / "out"
+    result = run("correct", str(data["cal"]), str(frames), "--out", str(out), "--workers", "2")
+    assert result.returncode == 1, result.stderr
+    assert "wrote 9 image(s)" in result.stderr and "failed 1" in result.stderr
+    failures = [line for line in result.stderr.splitlines() if line.startswith("picamcal: failed: ")]
+    assert len(failures) == 1 and f"{frames / 'f05.dng'}: " in failures[0], result.stderr
+    assert "LibRaw cannot read it" in failures[0]  # the reason
+    reference = snapshot(data["reference"])
+    del reference["f05.tiff"]
+    assert snapshot(out) == reference
+
+
+def test_an_unreachable_scheduler_is_one_line_before_any_work(data, tmp_path):
+    pytest.importorskip("distributed")
+    out = tmp_path / "out"
+    result = run(
+        "correct", str(data["cal"]), str(data["frames"]), "--out", str(out), "--scheduler", "tcp://127.0.0.1:1"
+    )
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert lines == ["picamcal: error: tcp://127.0.0.1:1: cannot reach the dask scheduler (Connection refused)"]
+    assert not out.exists()
+
+
+def test_an_output_folder_that_cannot_be_made_is_one_line_before_any_work(data, tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    result = run("correct", str(data["cal"]), str(data["frames"]), "--out", str(blocker / "out"))
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert lines == [f"picamcal: error: {blocker / 'out'}: cannot create the output folder: Not a directory"]
+    assert blocker.read_text() == ""
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root writes into a read-only (0o555) folder")
+def test_a_read_only_output_folder_is_refused_before_any_work(data, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir(mode=0o555)
+    with pytest.raises(OutputError, match="cannot write here: Permission denied"):
+        run_batch(data["cal"], [data["frames"]], out, workers=0)
+    assert list(out.iterdir()) == []
+
+
+def test_a_read_only_or_full_disk_leaves_no_file_behind(data, tmp_path, monkeypatch):
+    """Simulated in this process (workers=0): a real full or read-only disk needs privileges to set up."""
+    out = tmp_path / "out"
+
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+
+    with monkeypatch.context() as m:
+        m.setattr("tempfile.mkstemp", read_only)
+        with pytest.raises(OutputError, match=f"^{re.escape(str(out))}: cannot write here: Read-only file system$"):
+            run_batch(data["cal"], [data["frames"]], out, workers=0)
+
+    def no_room(fd, offset, length):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with monkeypatch.context() as m:
+        m.setattr("os.posix_fallocate", no_room, raising=False)
+        with pytest.raises(OutputError, match=r"no room for one output \(0\.9 MB\): No space left on device"):
+            run_batch(data["cal"], [data["frames"]], out, workers=0)
+    assert list(out.iterdir()) == []
+
+    written = []
+
+    def fills_up(path, *args, **kwargs):  # the disk fills during the third file, half-way through writing it
+        if len(written) == 2:
+            Path(path).write_bytes(b"II*\x00" + bytes(1000))
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        written.append(path)
+        with tifffile.TiffWriter(path) as tiff:
+            tiff.write(*args, **kwargs)
+
+    monkeypatch.setattr("tifffile.imwrite", fills_up)
+    with pytest.raises(OutputError, match=r"cannot write: No space left on device; stopped after 2 of 10 files"):
+        run_batch(data["cal"], [data["frames"]], out, workers=0)
+    assert sorted(p.name for p in out.iterdir()) == ["f00.tiff", "f01.tiff"]  # no half-written file, no temporary
+
+
+# ---------------------------------------------------------------------------------------------- outputs
+def test_zstd_compression_is_lossless(data, tmp_path):
+    pytest.importorskip("imagecodecs")
+    out = tmp_path / "out"
+    result = run("correct", str(data["cal"]), str(data["frames"]), "--out", str(out), "--compression", "zstd")
+    assert result.returncode == 0, result.stderr
+    for path in sorted(data["reference"].iterdir()):
+        with tifffile.TiffFile(path) as plain, tifffile.TiffFile(out / path.name) as packed:
+            assert packed.pages[0].compression == tifffile.COMPRESSION.ZSTD
+            assert packed.pages[0].description == plain.pages[0].description
+            np.testing.assert_array_equal(packed.asarray(), plain.asarray())
+    assert sum(p.stat().st_size for p in out.iterdir()) < 0.8 * sum(
+        p.stat().st_size for p in data["reference"].iterdir()
+    )
+
+
+def test_zarr_stack_holds_the_frames_with_ome_metadata_and_resumes(data, tmp_path):
+    zarr = pytest.importorskip("zarr")
+    stack = tmp_path / "frames.zarr"
+    frames = sorted(data["frames"].iterdir())
+    result = run("correct", str(data["cal"]), str(data["frames"]), "--zarr", str(stack), "--compression", "zstd")
+    assert result.returncode == 0, result.stderr
+    group = zarr.open_group(stack, mode="r")
+    ome = group.attrs["ome"]
+    assert ome["version"] == "0.5"
+    assert [a["name"] for a in ome["multiscales"][0]["axes"]] == ["t", "c", "y", "x"]
+    assert ome["multiscales"][0]["datasets"][0]["path"] == "0"
+    array = group["0"]
+    assert array.shape == (10, 3, 240, 320) and array.chunks == (1, 1, 240, 320) and array.dtype == np.float32
+    assert array.metadata.dimension_names == ("t", "c", "y", "x")
+    assert [type(c).__name__ for c in array.compressors] == ["ZstdCodec"]
+    for i, frame in enumerate(frames):
+        np.testing.assert_array_equal(
+            np.moveaxis(array[i], 0, -1), tifffile.imread(data["reference"] / f"{frame.stem}.tiff")
+        )
+    assert group.attrs["picamcal"]["done"] == list(range(10))
+
+    # As if killed before frames 3 and 7 were written and recorded: the rerun writes just those.
+    record = dict(group.attrs["picamcal"], done=[0, 1, 2, 4, 5, 6, 8, 9])
+    writable = zarr.open_group(stack, mode="r+")
+    writable.attrs["picamcal"] = record
+    writable["0"][3] = np.nan
+    writable["0"][7] = np.nan
+    resumed = run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=2)
+    assert resumed.done == [frames[3], frames[7]] and len(resumed.skipped) == 8
+    array = zarr.open_array(stack / "0", mode="r")
+    for i in (3, 7):
+        np.testing.assert_array_equal(
+            np.moveaxis(array[i], 0, -1), tifffile.imread(data["reference"] / f"{frames[i].stem}.tiff")
+        )
+
+    with pytest.raises(OutputError, match="all 10 outputs exist already"):
+        run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=0)
+    with pytest.raises(OutputError, match="holds a stack of other inputs or settings"):
+        run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=0, mode="flat")
