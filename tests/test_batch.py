@@ -299,3 +299,13 @@ def test_zarr_stack_holds_the_frames_with_ome_metadata_and_resumes(data, tmp_pat
         run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=0)
     with pytest.raises(OutputError, match="holds a stack of other inputs or settings"):
         run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=0, mode="flat")
+
+
+def test_a_folder_passes_over_npz_files_that_are_not_raw(tmp_path):
+    from picamcal.batch import expand_inputs
+    from picamcal.raw import RawImage, write_npz
+
+    raw = RawImage(np.zeros((4, 4), np.uint16), "RGGB", (0,) * 4, 1023, 10)
+    write_npz(tmp_path / "frame.npz", raw)
+    np.savez(tmp_path / "truth.npz", site_mixing=np.zeros(3))
+    assert expand_inputs([tmp_path]) == [tmp_path / "frame.npz"]

@@ -54,6 +54,7 @@ from .correct import correct, correct_processed
 from .errors import OutputError, PicamcalError, PicamcalWarning, RawFormatError
 from .output import write_rgb_tiff
 from .raw import PATTERNS, read_raw
+from .raw.npz import is_raw_npz
 from .raw.processed import ProcessedImage, linearise, read_processed
 
 #: Suffixes of the files taken from a folder of raw images (DNG, legacy JPEG+raw, picamera2 .npy, picamcal .npz).
@@ -185,8 +186,14 @@ def expand_inputs(items: Iterable[str | os.PathLike[str]], suffixes: Sequence[st
 
 
 def _folder_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    # A folder's .npz files that are not raw images (the calibration itself, say) are passed over.
     files = sorted(
-        p for p in folder.iterdir() if p.suffix.lower() in suffixes and not p.name.startswith(".") and p.is_file()
+        p
+        for p in folder.iterdir()
+        if p.suffix.lower() in suffixes
+        and not p.name.startswith(".")
+        and p.is_file()
+        and (p.suffix.lower() != ".npz" or is_raw_npz(p))
     )
     if not files:
         raise PicamcalError(f"no {', '.join(suffixes)} files in this folder", folder)

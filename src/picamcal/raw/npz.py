@@ -46,6 +46,22 @@ def write_npz(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
     return path
 
 
+def is_raw_npz(path: str | os.PathLike[str]) -> bool:
+    """True if an ``.npz`` file is a picamcal raw image (not, say, a calibration), from its member names only.
+
+    Examples
+    --------
+    >>> is_raw_npz("frame.npz"), is_raw_npz("cal.npz")  # doctest: +SKIP
+    (True, False)
+    """
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
+    return {"bayer.npy", "metadata.npy"} <= names and "unmixing.npy" not in names
+
+
 def read_npz(path: str | os.PathLike[str]) -> RawImage:
     """Read a picamcal raw ``.npz`` written by :func:`write_npz`.
 
