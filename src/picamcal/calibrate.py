@@ -131,12 +131,6 @@ def crosstalk_matrices(site_responses: np.ndarray, pattern: str) -> np.ndarray:
 def _load(role: str, ref: RawLike) -> tuple[RawImage, dict]:
     raw = ref if isinstance(ref, RawImage) else read_raw(ref)
     info: dict = {"role": role, "format": raw.metadata.get("format", "array")}
-    # How well exposed the reference is: the diagnostics judge clipping and under-exposure from these.
-    # Every fourth 2x2 block, so that all four Bayer sites are sampled.
-    sample = raw.bayer.reshape(raw.height // 2, 2, raw.width // 2, 2)[::4, :, ::4, :]
-    black = float(np.median(raw.black_level))
-    info["median_fraction"] = round(float((np.median(sample) - black) / (raw.white_level - black)), 5)
-    info["p99_fraction"] = round(float((np.percentile(sample, 99.9) - black) / (raw.white_level - black)), 5)
     info["clipped_fraction"] = float(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
     path = raw.metadata.get("path")
     if path and Path(path).is_file():
@@ -155,7 +149,7 @@ def _check_white(white: RawImage, black_sites: np.ndarray) -> None:
             f"level {white.white_level}, around x={int(np.median(xs))}, y={int(np.median(ys))}; reduce the exposure",
             white.source,
         )
-    signal = np.median(white.bayer) - float(np.median(black_sites))
+    signal = np.median(white.bayer[::4, ::4]) - float(np.median(black_sites))
     usable = white.white_level - float(np.median(black_sites))
     if signal <= 0:
         raise CalibrationInputError("white reference is not brighter than black", white.source)
@@ -225,7 +219,7 @@ def calibrate(
         raise CalibrationInputError(f"bin size must be an even number of pixels >= 2, got {bin_size}")
     named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
     raws, infos = _load_consistent({role: ref for role, ref in named.items() if ref is not None})
-    site_responses = _binned_responses(raws, black is not None, bin_size, smoothing)
+    site_responses = _binned_responses(raws, infos, black is not None, bin_size, smoothing)
     arrays = _derive(site_responses, raws[0].pattern, raws[1].source)
     return Calibration(arrays, _meta(raws, infos, bin_size, smoothing, black is not None, arrays))
 
@@ -277,7 +271,7 @@ def calibrate_in_situ(
         problem = ""
     if problem:
         raise CalibrationInputError(f"the white does not fit the jig calibration: {problem}", first.source)
-    new_white = _binned_responses(raws, black is not None, jig.bin_size, smoothing)[0]
+    new_white = _binned_responses(raws, infos, black is not None, jig.bin_size, smoothing)[0]
     jig_responses = jig.site_responses.astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         colours = jig_responses[1:] / jig_responses[0] * new_white
@@ -309,12 +303,24 @@ def _load_consistent(named: dict[str, RawLike]) -> tuple[list[RawImage], list[di
     return raws, [info for _, info in loaded]
 
 
-def _binned_responses(raws: list[RawImage], has_black: bool, bin_size: int, smoothing: float) -> np.ndarray:
-    """Black-subtracted per-site bin means of every reference but the black, white first (n, nby, nbx, 4)."""
+def _binned_responses(
+    raws: list[RawImage], infos: list[dict], has_black: bool, bin_size: int, smoothing: float
+) -> np.ndarray:
+    """Black-subtracted per-site bin means of every reference but the black, white first (n, nby, nbx, 4).
+
+    Also records each reference's exposure (median and 99.9th percentile of its bin means, as fractions
+    of the range from black to the white level) in its ``infos`` entry.
+    """
     first = raws[0]
     if bin_size > min(first.width, first.height):
         raise CalibrationInputError(f"bin size {bin_size} is larger than the image", first.source)
     binned = [bin_sites(raw.bayer, bin_size) for raw in raws]
+    for raw, sites, info in zip(raws, binned, infos, strict=True):
+        # How well exposed each reference is, from its bin means (the diagnostics judge under-exposure by these).
+        black = float(np.median(raw.black_level))
+        fraction = (sites - black) / (raw.white_level - black)
+        info["median_fraction"] = round(float(np.median(fraction)), 5)
+        info["p99_fraction"] = round(float(np.percentile(fraction, 99.9)), 5)
     if has_black:
         black_sites = binned.pop()
         black_raw = raws[-1]

@@ -185,7 +185,8 @@ class Calibration:
         path = Path(path)
         record = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, **self.meta}
         with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
-            np.savez_compressed(f, metadata=np.array(json.dumps(record)), **self.arrays)
+            # Uncompressed: the fields are noise-like floats that barely compress, and saving stays fast.
+            np.savez(f, metadata=np.array(json.dumps(record)), **self.arrays)
         return path
 
 
