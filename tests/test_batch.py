@@ -69,9 +69,12 @@ def data(tmp_path_factory) -> dict[str, Path]:
 # ---------------------------------------------------------------------------------------------- inputs
 def test_expand_inputs_takes_files_folders_and_patterns_in_order_without_duplicates(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    for name in ("run/b.dng", "run/a.DNG", "run/c.npz", "run/notes.txt", "run/.hidden.dng", "run/sub/d.dng", "x.jpg"):
+    for name in ("run/b.dng", "run/a.DNG", "run/notes.txt", "run/.hidden.dng", "run/sub/d.dng", "x.jpg"):
         Path(name).parent.mkdir(parents=True, exist_ok=True)
         Path(name).write_bytes(b"")
+    from picamcal.raw import RawImage, write_npz
+
+    write_npz("run/c.npz", RawImage(np.zeros((2, 2), np.uint16), "RGGB", (0,) * 4, 1023, 10))
     assert expand_inputs(["run"]) == [Path("run/a.DNG"), Path("run/b.dng"), Path("run/c.npz")]
     assert expand_inputs(["x.jpg", "run/*.dng", "run", "./run/b.dng"]) == [
         Path("x.jpg"),

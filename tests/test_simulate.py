@@ -130,6 +130,7 @@ def test_render_metadata_and_levels(camera):
     raw = render(make_camera("imx219", size=(64, 48), tilt=(1.0, 2.0)), "green", rng=3)
     assert raw.metadata == {
         "simulated": True,
+        "sensor_size": [64, 48],
         "exposure_time_s": 0.01,
         "analogue_gain": 1.0,
         "tilt_deg": [1.0, 2.0],
