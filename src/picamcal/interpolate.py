@@ -4,12 +4,24 @@ A field sampled at bin centres is interpolated with a cubic spline along each ax
 smoothly over the outer half-bin). The spline is linear in the data, so along one axis it is a
 matrix of shape (n_pixels, n_bins); a 2-D field F upsamples as ``Ay @ F @ Ax.T``. This keeps the
 cost at two matrix products and gives a C2-smooth gain surface with no block edges.
+
+The same spline is also a cubic B-spline (knots at the bin centres, the end ones fourfold, less the
+second and the second-last, which not-a-knot removes), and that form is local: a value at any position depends on
+only 4 coefficients along each axis. :func:`spline_coefficients` solves for the coefficients once
+per field, :func:`spline_taps` gives each position's 4 coefficient indices and weights, and a 2-D
+field evaluates at a pixel as ``sum_ab wy[a] * C[iy + a, ix + b] * wx[b]`` (16 taps), which is how
+the correction kernels interpolate on the fly without a full-resolution field.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import CubicSpline, make_interp_spline
+
+#: Degree of the splines.
+_K = 3
+#: Half the knot span of the constant spline through a single sample, in pixels.
+_WIDE = 2.0**20
 
 
 def interpolation_matrix(centres: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -29,7 +41,7 @@ def interpolation_matrix(centres: np.ndarray, positions: np.ndarray) -> np.ndarr
     Examples
     --------
     >>> A = interpolation_matrix(np.array([0.0, 1.0, 2.0, 3.0]), np.array([1.5]))
-    >>> float(A @ np.array([0.0, 1.0, 2.0, 3.0]))
+    >>> float((A @ np.array([0.0, 1.0, 2.0, 3.0]))[0])
     1.5
     """
     centres = np.asarray(centres, dtype=float)
@@ -56,3 +68,107 @@ def upsample(field: np.ndarray, ay: np.ndarray, ax: np.ndarray) -> np.ndarray:
     rows = np.tensordot(ay, flat, axes=(1, 0))  # (m, nbx, k)
     out = np.tensordot(ax, rows, axes=(1, 1))  # (mx, m, k)
     return np.moveaxis(out, 0, 1).reshape((ay.shape[0], ax.shape[0], *rest))
+
+
+def _spline(centres: np.ndarray, values: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """Knots and B-spline coefficients (along ``axis``) of the cubic spline through ``values`` at ``centres``.
+
+    The boundary conditions are those of :func:`interpolation_matrix`: not-a-knot, natural for 2 or 3
+    samples; one sample is a constant (a cubic Bezier piece with 4 equal coefficients).
+    """
+    if centres.size == 1:
+        # Equal coefficients make a constant whatever the knots; a span far wider than any sensor keeps
+        # every position near its middle, where the weights are all positive (no cancellation).
+        knots = np.repeat([centres[0] - _WIDE, centres[0] + _WIDE], _K + 1)
+        return knots, np.repeat(values, _K + 1, axis=axis)
+    bc = "not-a-knot" if centres.size > 3 else "natural"
+    spline = make_interp_spline(centres, values, k=_K, bc_type=bc, axis=axis)
+    return spline.t, np.moveaxis(spline.c, 0, axis)
+
+
+def spline_knots(centres: np.ndarray) -> np.ndarray:
+    """Knot vector of the cubic B-spline form of :func:`interpolation_matrix`'s spline on ``centres``.
+
+    Examples
+    --------
+    >>> spline_knots(np.array([0.0, 1.0, 2.0, 3.0, 4.0])).tolist()
+    [0.0, 0.0, 0.0, 0.0, 2.0, 4.0, 4.0, 4.0, 4.0]
+    """
+    centres = np.asarray(centres, dtype=float)
+    return _spline(centres, np.zeros(centres.size), 0)[0]
+
+
+def spline_coefficients(field: np.ndarray, centres_y: np.ndarray, centres_x: np.ndarray) -> np.ndarray:
+    """B-spline coefficients of a field sampled at bin centres, interpolated as :func:`interpolation_matrix` does.
+
+    Parameters
+    ----------
+    field : ndarray, shape (nby, nbx, ...)
+        Samples at ``centres_y`` x ``centres_x``.
+    centres_y, centres_x : ndarray
+        Increasing sample positions along each axis.
+
+    Returns
+    -------
+    ndarray of float64, shape (ncy, ncx, ...)
+        Coefficients for the knots :func:`spline_knots` gives for each axis (``ncy == nby`` for 4 or
+        more samples, ``nby + 2`` for 2 or 3, 4 for 1).
+
+    Examples
+    --------
+    >>> c = np.arange(5.0)
+    >>> f = np.add.outer(c, 2 * c)  # a plane is its own spline
+    >>> C = spline_coefficients(f, c, c)
+    >>> iy, wy = spline_taps(spline_knots(c), np.array([1.5]))
+    >>> ix, wx = spline_taps(spline_knots(c), np.array([3.25]))
+    >>> round(float(wy[0] @ C[iy[0] : iy[0] + 4, ix[0] : ix[0] + 4] @ wx[0]), 12)
+    8.0
+    """
+    field = np.asarray(field, dtype=np.float64)
+    along_y = _spline(np.asarray(centres_y, dtype=float), field, 0)[1]
+    return _spline(np.asarray(centres_x, dtype=float), along_y, 1)[1]
+
+
+def spline_taps(knots: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the first of the 4 B-spline coefficients that act at each position, and their weights.
+
+    Positions outside the knots get the end pieces' polynomials continued, as
+    :func:`interpolation_matrix` extrapolates (de Boor's recurrence on the nearest knot interval).
+
+    Parameters
+    ----------
+    knots : ndarray
+        From :func:`spline_knots`.
+    positions : ndarray, shape (m,)
+
+    Returns
+    -------
+    first : ndarray of int64, shape (m,)
+    weights : ndarray of float64, shape (m, 4)
+        The value at ``positions[i]`` is ``weights[i] @ coefficients[first[i] : first[i] + 4]``.
+
+    Examples
+    --------
+    >>> first, weights = spline_taps(np.repeat([0.0, 1.0], 4), np.array([0.5]))
+    >>> first.tolist(), weights.tolist()
+    ([0], [[0.125, 0.375, 0.375, 0.125]])
+    """
+    t = np.asarray(knots, dtype=float)
+    x = np.asarray(positions, dtype=float)
+    n_coefficients = t.size - _K - 1
+    span = np.clip(np.searchsorted(t, x, side="right") - 1, _K, n_coefficients - 1)
+    # de Boor's triangle (The NURBS Book, algorithm A2.2), vectorised over positions.
+    weights = np.zeros((x.size, _K + 1))
+    weights[:, 0] = 1.0
+    left = np.empty((x.size, _K + 1))
+    right = np.empty((x.size, _K + 1))
+    for j in range(1, _K + 1):
+        left[:, j] = x - t[span + 1 - j]
+        right[:, j] = t[span + j] - x
+        saved = np.zeros(x.size)
+        for r in range(j):
+            temp = weights[:, r] / (right[:, r + 1] + left[:, j - r])
+            weights[:, r] = saved + right[:, r + 1] * temp
+            saved = left[:, j - r] * temp
+        weights[:, j] = saved
+    return span - _K, weights

@@ -1,0 +1,598 @@
+"""Fused full-resolution correction: black, flat field, demosaic and unmixing in one pass over the frame.
+
+:func:`picamcal.correct.correct` does, per pixel (paper, section "Colour crosstalk")::
+
+    Unmixed_ijp = sum_q U_ijpq demosaic(Cb LST (Image - black))_ijq
+
+where the flat-field gain ``Cb LST = 1 / W`` and the matrix field ``U`` are cubic splines through
+bin-resolution samples. Here both are evaluated on the fly from their local B-spline form
+(:func:`picamcal.interpolate.spline_coefficients`, 4 x 4 taps per pixel), one row at a time, so no
+full-resolution gain or matrix field ever exists: memory is the (H, W, 3) float32 output plus a few
+rows per thread. Demosaicing is Malvar, He and Cutler (2004), its four 5x5 linear filters with
+the borders of colour-demosaicing's implementation (``scipy.ndimage.convolve``'s default
+``reflect``: the frame is mirrored about its edge, edge pixel repeated).
+
+Two implementations with the same float32 arithmetic in the same order, so they give the same
+result to the last bit or nearly (compilers may still differ by an ulp):
+
+``numba``
+    a parallel kernel (``prange`` over blocks of rows), compiled on first use and cached on disk.
+    numba is optional and imported only when this kernel is first asked for.
+``numpy``
+    row blocks with array slicing, for where numba is not installed (32-bit Raspberry Pi OS has
+    no numba wheels).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import numpy as np
+
+#: Rows per block of the numpy path: its temporaries are ~20 float32 arrays of this many rows.
+NUMPY_BLOCK_ROWS = 64
+#: Rows per parallel work item of the numba kernel.
+NUMBA_BLOCK_ROWS = 64
+
+_F05 = np.float32(0.5)
+_F15 = np.float32(1.5)
+_F2 = np.float32(2.0)
+_F4 = np.float32(4.0)
+_F5 = np.float32(5.0)
+_F6 = np.float32(6.0)
+_EIGHTH = np.float32(0.125)
+
+
+class Taps(NamedTuple):
+    """Where a cubic B-spline's 4 coefficients start at each position along an axis, and their weights.
+
+    From :func:`picamcal.interpolate.spline_taps`, laid out for the kernels: the value at position
+    ``i`` of a spline with coefficients ``c`` is ``sum_b weights[b, i] * c[first[i] + b]``. Leading
+    axes, when present, index the Bayer site parity.
+
+    Attributes
+    ----------
+    first : ndarray of int64, shape (..., m)
+    weights : ndarray of float32, shape (..., 4, m)
+    runs : ndarray of uint64, shape (..., r + 1)
+        Start of each run of positions with the same ``first`` (between two knots), then ``m``;
+        padded with ``m`` where parities have fewer runs.
+    """
+
+    first: np.ndarray
+    weights: np.ndarray
+    runs: np.ndarray
+
+
+def make_taps(first: np.ndarray, weights: np.ndarray) -> Taps:
+    """Taps from :func:`picamcal.interpolate.spline_taps` output, ``first`` (..., m) and ``weights`` (..., m, 4).
+
+    Examples
+    --------
+    >>> t = make_taps(np.array([0, 0, 1, 1, 1]), np.full((5, 4), 0.25))
+    >>> t.weights.shape, t.runs.tolist()
+    ((4, 5), [0, 2, 5])
+    """
+    first = np.ascontiguousarray(first, dtype=np.int64)
+    flat = first.reshape(-1, first.shape[-1])
+    changes = [np.flatnonzero(np.diff(f)) + 1 for f in flat]
+    runs = np.full((flat.shape[0], max(c.size for c in changes) + 2), first.shape[-1], dtype=np.uint64)
+    for row, c in zip(runs, changes, strict=True):
+        row[0] = 0
+        row[1 : c.size + 1] = c
+    return Taps(
+        first,
+        np.ascontiguousarray(np.swapaxes(weights, -1, -2), dtype=np.float32),
+        runs.reshape(*first.shape[:-1], runs.shape[-1]),
+    )
+
+
+class CorrectionFields(NamedTuple):
+    """Everything the kernels need for one sensor size and mode, as float32 arrays and :class:`Taps`.
+
+    Build it with :func:`picamcal.correct.correction_fields`. A field with B-spline coefficients
+    ``C`` (:func:`picamcal.interpolate.spline_coefficients`) has at row ``y`` and column ``x`` the value
+    ``sum_ab rows.weights[a, y] * C[rows.first[y] + a, cols.first[x] + b] * cols.weights[b, x]``.
+
+    Attributes
+    ----------
+    black : ndarray (4,)
+        Black level per site of the 2x2 Bayer block, row-major.
+    channels : ndarray of int64 (4,)
+        Channel (0 R, 1 G, 2 B) of each site.
+    site_gains : ndarray (4,)
+        Constant gain per site, used when ``white`` is None (mode ``balance``).
+    white : ndarray (4, ncy, ncx) or None
+        B-spline coefficients of each site's white response; the gain is its reciprocal.
+    white_rows : Taps
+        Every row, on the knots of its own site row.
+    white_cols : Taps
+        With a leading axis of 2: the even columns (``x = 2 j``) and the odd ones, each on its site's knots.
+    matrices : ndarray (9, ncy, ncx) or None
+        B-spline coefficients of the 3x3 matrix field, row-major elements first; None for no matrix.
+    matrix_rows, matrix_cols : Taps
+        Every row and every column, on the knots of the bin centres.
+    """
+
+    black: np.ndarray
+    channels: np.ndarray
+    site_gains: np.ndarray
+    white: np.ndarray | None
+    white_rows: Taps
+    white_cols: Taps
+    matrices: np.ndarray | None
+    matrix_rows: Taps
+    matrix_cols: Taps
+
+
+@functools.cache
+def numba_available() -> bool:
+    """Whether numba can be imported (it is optional).
+
+    Examples
+    --------
+    >>> numba_available() in (True, False)
+    True
+    """
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def output_array(out: np.ndarray | None, height: int, width: int) -> np.ndarray:
+    """``out`` if it can take an (H, W, 3) float32 image (else ValueError), or a new array.
+
+    Examples
+    --------
+    >>> output_array(None, 4, 6).shape
+    (4, 6, 3)
+    """
+    if out is None:
+        return np.empty((height, width, 3), dtype=np.float32)
+    if out.shape != (height, width, 3) or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float32 array of shape {(height, width, 3)}")
+    return out
+
+
+def _reflect(index: np.ndarray, n: int) -> np.ndarray:
+    """scipy.ndimage's ``reflect`` boundary for offsets of at most n: -1 -> 0, n -> n - 1."""
+    index = np.where(index < 0, -index - 1, index)
+    return np.where(index >= n, 2 * n - 1 - index, index)
+
+
+# ---------------------------------------------------------------------------------------------
+# numpy path
+
+
+def _flat_rows(bayer: np.ndarray, rows: np.ndarray, fields: CorrectionFields) -> np.ndarray:
+    """Black-subtracted, flat-fielded mosaic rows, padded by 2 mirrored columns each side: (len(rows), W + 4)."""
+    width = bayer.shape[1]
+    buf = np.empty((rows.size, width + 4), dtype=np.float32)
+    for sy in (0, 1):
+        sel = np.flatnonzero(rows % 2 == sy)
+        r = rows[sel]
+        for sx in (0, 1):
+            site = 2 * sy + sx
+            raw = bayer[r, sx::2].astype(np.float32) - fields.black[site]
+            if fields.white is None:
+                buf[sel, 2 + sx : width + 2 : 2] = raw * fields.site_gains[site]
+                continue
+            c = fields.white[site]
+            i, w = fields.white_rows.first[r], fields.white_rows.weights[:, r, None]
+            along_y = w[0] * c[i] + w[1] * c[i + 1] + w[2] * c[i + 2] + w[3] * c[i + 3]
+            j, u = fields.white_cols.first[sx], fields.white_cols.weights[sx]
+            white = u[0] * along_y[:, j] + u[1] * along_y[:, j + 1] + u[2] * along_y[:, j + 2]
+            white += u[3] * along_y[:, j + 3]
+            buf[sel, 2 + sx : width + 2 : 2] = raw / white
+    buf[:, 0] = buf[:, 3]
+    buf[:, 1] = buf[:, 2]
+    buf[:, width + 2] = buf[:, width + 1]
+    buf[:, width + 3] = buf[:, width]
+    return buf
+
+
+def _demosaic_block(buf: np.ndarray, y0: int, channels: np.ndarray, rgb: np.ndarray) -> None:
+    """Malvar-He-Cutler on padded flat rows ``buf`` (rows y0 - 2 ... ) into ``rgb`` (rows, W, 3)."""
+    n_rows, width = rgb.shape[:2]
+    for ry in range(min(2, n_rows)):  # local row parity
+        sy = (y0 + ry) % 2
+        ny = (n_rows - ry + 1) // 2
+        c_even, c_odd = channels[2 * sy], channels[2 * sy + 1]
+        colour, green_x = (c_odd, 0) if c_even == 1 else (c_even, 1)
+        other = 2 - colour
+        for px, is_green in ((1 - green_x, False), (green_x, True)):
+            nx = (width - px + 1) // 2
+
+            def tap(dy: int, dx: int, ry: int = ry, px: int = px, ny: int = ny, nx: int = nx) -> np.ndarray:
+                r0, c0 = 2 + ry + dy, 2 + px + dx
+                return buf[r0 : r0 + 2 * ny - 1 : 2, c0 : c0 + 2 * nx - 1 : 2]
+
+            v = tap(0, 0)
+            out = rgb[ry::2, px::2]
+            if not is_green:
+                cross = (tap(-1, 0) + tap(1, 0) + tap(0, -1)) + tap(0, 1)
+                axial2 = (tap(-2, 0) + tap(2, 0) + tap(0, -2)) + tap(0, 2)
+                diagonal = (tap(-1, -1) + tap(-1, 1) + tap(1, -1)) + tap(1, 1)
+                out[..., colour] = v
+                out[..., 1] = (_F4 * v + _F2 * cross - axial2) * _EIGHTH
+                out[..., other] = (_F6 * v + _F2 * diagonal - _F15 * axial2) * _EIGHTH
+            else:
+                diagonal = (tap(-1, -1) + tap(-1, 1) + tap(1, -1)) + tap(1, 1)
+                horizontal1 = tap(0, -1) + tap(0, 1)
+                horizontal2 = tap(0, -2) + tap(0, 2)
+                vertical1 = tap(-1, 0) + tap(1, 0)
+                vertical2 = tap(-2, 0) + tap(2, 0)
+                out[..., 1] = v
+                out[..., colour] = (_F5 * v + _F4 * horizontal1 - horizontal2 - diagonal + _F05 * vertical2) * _EIGHTH
+                out[..., other] = (_F5 * v + _F4 * vertical1 - vertical2 - diagonal + _F05 * horizontal2) * _EIGHTH
+
+
+def _unmix_block(rgb: np.ndarray, y0: int, fields: CorrectionFields) -> None:
+    """Apply the interpolated matrix field to rows y0 ... of the image, in place on ``rgb`` (rows, W, 3)."""
+    c = fields.matrices
+    rows = slice(y0, y0 + rgb.shape[0])
+    i, w = fields.matrix_rows.first[rows], fields.matrix_rows.weights[:, rows, None]
+    along_y = w[0] * c[:, i] + w[1] * c[:, i + 1] + w[2] * c[:, i + 2] + w[3] * c[:, i + 3]  # (9, rows, ncx)
+    j, u = fields.matrix_cols.first, fields.matrix_cols.weights
+    r, g, b = rgb[..., 0].copy(), rgb[..., 1].copy(), rgb[..., 2].copy()
+    for p in range(3):
+        m = []
+        for a in along_y[3 * p : 3 * p + 3]:
+            element = u[0] * a[:, j] + u[1] * a[:, j + 1] + u[2] * a[:, j + 2]
+            element += u[3] * a[:, j + 3]
+            m.append(element)
+        rgb[..., p] = m[0] * r + m[1] * g + m[2] * b
+
+
+def correct_numpy(
+    bayer: np.ndarray, fields: CorrectionFields, out: np.ndarray | None = None, block_rows: int = NUMPY_BLOCK_ROWS
+) -> np.ndarray:
+    """The fused correction with numpy, block of rows by block of rows (same arithmetic as :func:`correct_numba`).
+
+    Parameters
+    ----------
+    bayer : ndarray of uint16, shape (H, W)
+        The raw mosaic (even H and W).
+    fields : CorrectionFields
+        From :func:`picamcal.correct.correction_fields`, with the image's black level.
+    out : ndarray of float32, shape (H, W, 3), optional
+        Where to write the result (C-contiguous); a new array by default.
+    block_rows : int
+        Rows per block: temporaries scale with it.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, 3)
+
+    Examples
+    --------
+    >>> from picamcal.correct import correction_fields
+    >>> fields = correction_fields(cal, "centre", raw.height, raw.width)._replace(black=black)  # doctest: +SKIP
+    >>> rgb = correct_numpy(raw.bayer, fields)  # doctest: +SKIP
+    """
+    height, width = bayer.shape
+    out = output_array(out, height, width)
+    for y0 in range(0, height, block_rows):
+        y1 = min(y0 + block_rows, height)
+        buf = _flat_rows(bayer, _reflect(np.arange(y0 - 2, y1 + 2), height), fields)
+        _demosaic_block(buf, y0, fields.channels, out[y0:y1])
+        if fields.matrices is not None:
+            _unmix_block(out[y0:y1], y0, fields)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# numba path
+#
+# Written for LLVM's loop vectoriser, which gives up on a loop for reasons that are easy to miss:
+# - an index numba cannot prove non-negative gets a wrap-around test: inner loops count from 0, or
+#   over unsigned run bounds;
+# - numba's default error model tests every float division for zero: error_model="numpy" (IEEE, as numpy);
+# - stores at stride 2: the mosaic is kept as two planes per row (even and odd columns), the demosaic
+#   writes 6 half-row planes and only then merges them into full rows;
+# - gathers: the splines are evaluated run by run (a run is the pixels between two knots, where the
+#   4 coefficients are constants).
+# Each thread works in its own 5-row ring of flat-fielded mosaic rows and a few planar rows, and
+# interleaves into the output row last.
+
+
+@functools.cache
+def _numba_kernel():
+    """Compile (or load from numba's cache) the parallel kernel; numba is imported here only.
+
+    The helpers become module globals rather than closure variables of the kernel: numba keys its
+    disk cache of a closure on a pickle of the closure's variables, and a pickled dispatcher differs
+    from one process to the next, so a kernel that closed over its helpers would never be reused.
+    """
+    global _nb_flat_row, _nb_demosaic_pairs, _nb_merge, _nb_demosaic_row, _nb_unmix_row, _nb_interleave_row
+    import numba
+
+    f05, f15, f2, f4, f5, f6, eighth = _F05, _F15, _F2, _F4, _F5, _F6, _EIGHTH
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _nb_flat_row(bayer, y, black, site_gains, flat, white, iy, wy, first, weights, runs, along_y, dst):
+        half = bayer.shape[1] // 2
+        sy = y & 1
+        raw = bayer[y]
+        if flat:
+            i = iy[y]
+            w0, w1, w2, w3 = wy[0, y], wy[1, y], wy[2, y], wy[3, y]
+            for sx in range(2):
+                c0, c1, c2, c3 = (
+                    white[2 * sy + sx, i],
+                    white[2 * sy + sx, i + 1],
+                    white[2 * sy + sx, i + 2],
+                    white[2 * sy + sx, i + 3],
+                )
+                a = along_y[sx]
+                for j in range(a.shape[0]):
+                    a[j] = w0 * c0[j] + w1 * c1[j] + w2 * c2[j] + w3 * c3[j]
+        even, odd = dst[0, 1 : half + 1], dst[1, 1 : half + 1]
+        level0, level1 = black[2 * sy], black[2 * sy + 1]
+        for j in range(half):
+            even[j] = np.float32(raw[2 * j]) - level0
+            odd[j] = np.float32(raw[2 * j + 1]) - level1
+        for sx in range(2):
+            plane = dst[sx, 1 : half + 1]
+            if not flat:
+                gain = site_gains[2 * sy + sx]
+                for j in range(half):
+                    plane[j] = plane[j] * gain
+                continue
+            a = along_y[sx]
+            u0, u1, u2, u3 = weights[sx, 0], weights[sx, 1], weights[sx, 2], weights[sx, 3]
+            for r in range(runs.shape[1] - 1):
+                j0, j1 = runs[sx, r], runs[sx, r + 1]
+                k = first[sx, j0]
+                a0, a1, a2, a3 = a[k], a[k + 1], a[k + 2], a[k + 3]
+                for j in range(j0, j1):
+                    white_value = u0[j] * a0 + u1[j] * a1 + u2[j] * a2
+                    white_value += u3[j] * a3
+                    plane[j] = plane[j] / white_value
+        dst[0, 0] = dst[1, 1]
+        dst[1, 0] = dst[0, 1]
+        dst[0, half + 1] = dst[1, half]
+        dst[1, half + 1] = dst[0, half]
+
+    @numba.njit(inline="always", error_model="numpy")
+    def _nb_demosaic_pairs(r0, r1, r2, r3, r4, gx, half_rows):
+        # Pixel 2j + gx is green, 2j + 1 - gx the row's red or blue (its colour c; o is the other of the two).
+        # Mosaic planes are padded by one column; results go to 6 planes of half rows (green-pixel G, c, o,
+        # then other-pixel c, G, o), as stride-2 stores would keep the loop from vectorising.
+        nx = 1 - gx
+        g0, g1, g2, g3, g4 = r0[gx], r1[gx], r2[gx], r3[gx], r4[gx]
+        n0, n1, n2, n3, n4 = r0[nx], r1[nx], r2[nx], r3[nx], r4[nx]
+        green_g, green_c, green_o = half_rows[0], half_rows[1], half_rows[2]
+        other_c, other_g, other_o = half_rows[3], half_rows[4], half_rows[5]
+        for j in range(green_g.shape[0]):
+            v = g2[j + 1]
+            diagonal = (n1[j + gx] + n1[j + gx + 1] + n3[j + gx]) + n3[j + gx + 1]
+            horizontal1 = n2[j + gx] + n2[j + gx + 1]
+            horizontal2 = g2[j] + g2[j + 2]
+            vertical1 = g1[j + 1] + g3[j + 1]
+            vertical2 = g0[j + 1] + g4[j + 1]
+            green_g[j] = v
+            green_c[j] = (f5 * v + f4 * horizontal1 - horizontal2 - diagonal + f05 * vertical2) * eighth
+            green_o[j] = (f5 * v + f4 * vertical1 - vertical2 - diagonal + f05 * horizontal2) * eighth
+            v = n2[j + 1]
+            cross = (n1[j + 1] + n3[j + 1] + g2[j + nx]) + g2[j + nx + 1]
+            axial2 = (n0[j + 1] + n4[j + 1] + n2[j]) + n2[j + 2]
+            diagonal = (g1[j + nx] + g1[j + nx + 1] + g3[j + nx]) + g3[j + nx + 1]
+            other_c[j] = v
+            other_g[j] = (f4 * v + f2 * cross - axial2) * eighth
+            other_o[j] = (f6 * v + f2 * diagonal - f15 * axial2) * eighth
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _nb_merge(even, odd, dst):
+        for j in range(even.shape[0]):
+            dst[2 * j] = even[j]
+            dst[2 * j + 1] = odd[j]
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _nb_demosaic_row(r0, r1, r2, r3, r4, y, channels, half_rows, rgb):
+        sy = y & 1
+        c_even, c_odd = channels[2 * sy], channels[2 * sy + 1]
+        colour = c_odd if c_even == 1 else c_even
+        if c_even == 1:
+            _nb_demosaic_pairs(r0, r1, r2, r3, r4, 0, half_rows)
+            _nb_merge(half_rows[0], half_rows[4], rgb[1])
+            _nb_merge(half_rows[1], half_rows[3], rgb[colour])
+            _nb_merge(half_rows[2], half_rows[5], rgb[2 - colour])
+        else:
+            _nb_demosaic_pairs(r0, r1, r2, r3, r4, 1, half_rows)
+            _nb_merge(half_rows[4], half_rows[0], rgb[1])
+            _nb_merge(half_rows[3], half_rows[1], rgb[colour])
+            _nb_merge(half_rows[5], half_rows[2], rgb[2 - colour])
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _nb_unmix_row(y, matrices, iy, wy, first, weights, runs, along_y, rgb, mixed):
+        i = iy[y]
+        w0, w1, w2, w3 = wy[0, y], wy[1, y], wy[2, y], wy[3, y]
+        for k in range(9):
+            c0, c1, c2, c3 = matrices[k, i], matrices[k, i + 1], matrices[k, i + 2], matrices[k, i + 3]
+            a = along_y[k]
+            for j in range(a.shape[0]):
+                a[j] = w0 * c0[j] + w1 * c1[j] + w2 * c2[j] + w3 * c3[j]
+        u0, u1, u2, u3 = weights[0], weights[1], weights[2], weights[3]
+        red, green, blue = rgb[0], rgb[1], rgb[2]
+        for p in range(3):
+            ap0, ap1, ap2 = along_y[3 * p], along_y[3 * p + 1], along_y[3 * p + 2]
+            d = mixed[p]
+            for r in range(runs.shape[0] - 1):
+                x0, x1 = runs[r], runs[r + 1]
+                k = first[x0]
+                a00, a10, a20, a30 = ap0[k], ap0[k + 1], ap0[k + 2], ap0[k + 3]
+                a01, a11, a21, a31 = ap1[k], ap1[k + 1], ap1[k + 2], ap1[k + 3]
+                a02, a12, a22, a32 = ap2[k], ap2[k + 1], ap2[k + 2], ap2[k + 3]
+                for x in range(x0, x1):
+                    m0 = u0[x] * a00 + u1[x] * a10 + u2[x] * a20
+                    m0 += u3[x] * a30
+                    m1 = u0[x] * a01 + u1[x] * a11 + u2[x] * a21
+                    m1 += u3[x] * a31
+                    m2 = u0[x] * a02 + u1[x] * a12 + u2[x] * a22
+                    m2 += u3[x] * a32
+                    d[x] = m0 * red[x] + m1 * green[x] + m2 * blue[x]
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _nb_interleave_row(rgb, out_row):
+        red, green, blue = rgb[0], rgb[1], rgb[2]
+        for x in range(red.shape[0]):
+            out_row[3 * x] = red[x]
+            out_row[3 * x + 1] = green[x]
+            out_row[3 * x + 2] = blue[x]
+
+    @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+    def kernel(
+        bayer,
+        black,
+        channels,
+        site_gains,
+        flat,
+        white,
+        white_y,
+        white_x,
+        unmix,
+        matrices,
+        matrix_y,
+        matrix_x,
+        block_rows,
+        ring,
+        half_rows,
+        rgb,
+        mixed,
+        white_along,
+        matrix_along,
+        out,
+    ):
+        height = bayer.shape[0]
+        wiy, wwy = white_y
+        wfirst, wweights, wruns = white_x
+        miy, mwy = matrix_y
+        mfirst, mweights, mruns = matrix_x
+        n_blocks = (height + block_rows - 1) // block_rows
+        for block in numba.prange(n_blocks):
+            t = numba.get_thread_id()
+            rows, planar, unmixed, along = ring[t], rgb[t], mixed[t], white_along[t]
+            y0 = block * block_rows
+            y1 = min(y0 + block_rows, height)
+            for y in range(y0 - 2, y0 + 2):
+                source = -y - 1 if y < 0 else (2 * height - 1 - y if y >= height else y)
+                _nb_flat_row(
+                    bayer,
+                    source,
+                    black,
+                    site_gains,
+                    flat,
+                    white,
+                    wiy,
+                    wwy,
+                    wfirst,
+                    wweights,
+                    wruns,
+                    along,
+                    rows[(y + 5) % 5],
+                )
+            for y in range(y0, y1):
+                ahead = y + 2
+                source = 2 * height - 1 - ahead if ahead >= height else ahead
+                _nb_flat_row(
+                    bayer,
+                    source,
+                    black,
+                    site_gains,
+                    flat,
+                    white,
+                    wiy,
+                    wwy,
+                    wfirst,
+                    wweights,
+                    wruns,
+                    along,
+                    rows[ahead % 5],
+                )
+                _nb_demosaic_row(
+                    rows[(y + 3) % 5],
+                    rows[(y + 4) % 5],
+                    rows[y % 5],
+                    rows[(y + 1) % 5],
+                    rows[(y + 2) % 5],
+                    y,
+                    channels,
+                    half_rows[t],
+                    planar,
+                )
+                if unmix:
+                    _nb_unmix_row(y, matrices, miy, mwy, mfirst, mweights, mruns, matrix_along[t], planar, unmixed)
+                    _nb_interleave_row(unmixed, out[y])
+                else:
+                    _nb_interleave_row(planar, out[y])
+
+    return kernel
+
+
+def correct_numba(
+    bayer: np.ndarray, fields: CorrectionFields, out: np.ndarray | None = None, block_rows: int = NUMBA_BLOCK_ROWS
+) -> np.ndarray:
+    """The fused correction as one parallel numba kernel (same arithmetic as :func:`correct_numpy`).
+
+    The first call in a process loads the compiled kernel from numba's disk cache (a fraction of a
+    second), or compiles it (about 10 s) when there is none; later calls run at full speed. Each
+    thread works in 5 mosaic rows, a few RGB rows and one row of spline coefficients, allocated
+    here; nothing else is allocated besides ``out``.
+
+    Parameters
+    ----------
+    bayer : ndarray of uint16, shape (H, W)
+    fields : CorrectionFields
+    out : ndarray of float32, shape (H, W, 3), optional
+    block_rows : int
+        Rows per parallel work item.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, 3)
+
+    Raises
+    ------
+    ImportError
+        numba is not installed.
+
+    Examples
+    --------
+    >>> rgb = correct_numba(raw.bayer, correction_fields(cal, "centre", raw.height, raw.width))  # doctest: +SKIP
+    """
+    import numba
+
+    kernel = _numba_kernel()
+    height, width = bayer.shape
+    out = output_array(out, height, width)
+    threads = numba.get_num_threads()
+    half = width // 2
+    white = np.zeros((4, 4, 4), np.float32) if fields.white is None else fields.white
+    matrices = np.zeros((9, 4, 4), np.float32) if fields.matrices is None else fields.matrices
+    kernel(
+        np.ascontiguousarray(bayer, dtype=np.uint16),
+        fields.black,
+        fields.channels,
+        fields.site_gains,
+        fields.white is not None,
+        white,
+        tuple(fields.white_rows[:2]),
+        tuple(fields.white_cols),
+        fields.matrices is not None,
+        matrices,
+        tuple(fields.matrix_rows[:2]),
+        tuple(fields.matrix_cols),
+        block_rows,
+        np.empty((threads, 5, 2, half + 2), dtype=np.float32),
+        np.empty((threads, 6, half), dtype=np.float32),
+        np.empty((threads, 3, width), dtype=np.float32),
+        np.empty((threads, 3, width), dtype=np.float32),
+        np.empty((threads, 2, white.shape[2]), dtype=np.float32),
+        np.empty((threads, 9, matrices.shape[2]), dtype=np.float32),
+        out.reshape(height, 3 * width),
+    )
+    return out

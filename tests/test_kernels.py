@@ -1,0 +1,205 @@
+"""The fused correction kernels: numba and numpy agree with each other and with the plain reference.
+
+Tolerances, on images whose white reference is 1.0:
+
+- numba vs numpy: 1e-6. Both do the same float32 operations in the same order (they are equal to
+  the bit on this machine; a compiler may still contract or reorder one operation, a few ulp).
+- fused vs reference: 2e-5. The interpolant is the same spline (its B-spline form is checked
+  against the dense matrices to 1e-12 below); what differs is float32 against the reference's float64
+  in the spline evaluation and in colour-demosaicing's convolutions (measured: at most 3.6e-6).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from picamcal import calibrate, correct
+from picamcal.bayer import bin_centres
+from picamcal.correct import correction_fields, demosaic
+from picamcal.interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
+from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available
+from picamcal.raw import PATTERNS, RawImage
+from picamcal.sensors import SENSORS
+from picamcal.simulate import make_camera, simulate_references, simulate_target
+
+MODES = ("balance", "flat", "centre", "pure")
+NUMBA_VS_NUMPY = 1e-6
+FUSED_VS_REFERENCE = 2e-5
+
+correct_module = importlib.import_module("picamcal.correct")  # the package's `correct` is the function
+needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is not installed")
+
+
+def _scene(sensor: str, pattern: str, size: tuple[int, int], bin_size: int = 16):
+    camera = make_camera(sensor, pattern=pattern, size=size)
+    cal = calibrate(**simulate_references(camera, seed=1), bin_size=bin_size)
+    target, _ = simulate_target(camera, seed=2)
+    return cal, target
+
+
+@pytest.fixture(scope="module", params=[(s, p) for s in SENSORS for p in PATTERNS], ids="-".join)
+def small(request):
+    """A 200 x 160 frame of every sensor in every Bayer order, with its calibration."""
+    return _scene(*request.param, size=(200, 160))
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_numpy_path_matches_the_reference(small, mode):
+    cal, target = small
+    fused = correct(target, cal, mode, engine="numpy")
+    reference = correct(target, cal, mode, engine="reference")
+    assert fused.dtype == np.float32 and fused.shape == (160, 200, 3)
+    np.testing.assert_allclose(fused, reference, rtol=0, atol=FUSED_VS_REFERENCE)
+
+
+@needs_numba
+@pytest.mark.parametrize("mode", MODES)
+def test_numba_kernel_matches_the_numpy_path(small, mode):
+    cal, target = small
+    fused = correct(target, cal, mode, engine="numba")
+    np.testing.assert_allclose(fused, correct(target, cal, mode, engine="numpy"), rtol=0, atol=NUMBA_VS_NUMPY)
+    np.testing.assert_allclose(fused, correct(target, cal, mode, engine="reference"), rtol=0, atol=FUSED_VS_REFERENCE)
+
+
+@pytest.mark.parametrize(
+    ("sensor", "size", "bin_size"),
+    [
+        ("imx477", (1000, 800), 16),  # a larger frame, with a partial last bin column
+        ("imx219", (202, 162), 10),  # bins of 10: knot intervals that start at odd pixels; size 2 mod 4
+        ("ov5647", (40, 24), 16),  # 3 x 2 bins: the natural splines of interpolation_matrix
+        ("imx708", (32, 16), 16),  # one row of two bins: constant along y, linear along x
+    ],
+)
+@pytest.mark.parametrize("mode", ["flat", "pure"])
+def test_engines_agree_on_other_geometries(sensor, size, bin_size, mode):
+    cal, target = _scene(sensor, "GRBG", size, bin_size)
+    reference = correct(target, cal, mode, engine="reference")
+    fused = correct(target, cal, mode, engine="numpy")
+    np.testing.assert_allclose(fused, reference, rtol=0, atol=FUSED_VS_REFERENCE)
+    if numba_available():
+        np.testing.assert_allclose(correct(target, cal, mode, engine="numba"), fused, rtol=0, atol=NUMBA_VS_NUMPY)
+
+
+@pytest.mark.parametrize("height", [200, 162, 40, 20, 12])
+@pytest.mark.parametrize("site", [None, 0, 1])
+def test_local_spline_is_the_cubic_spline_of_interpolation_matrix(height, site):
+    width = 4056
+    cy, cx = bin_centres(height, 16, site), bin_centres(width, 16, site)
+    field = np.random.default_rng(height).normal(size=(cy.size, cx.size))
+    y, x = np.arange(height), np.arange(width)
+    dense = upsample(field, interpolation_matrix(cy, y), interpolation_matrix(cx, x))
+    coefficients = spline_coefficients(field, cy, cx)
+    (iy, wy), (ix, wx) = spline_taps(spline_knots(cy), y), spline_taps(spline_knots(cx), x)
+    rows = np.einsum("ya,yac->yc", wy, coefficients[iy[:, None] + np.arange(4)])
+    local = np.einsum("yxb,xb->yx", rows[:, ix[:, None] + np.arange(4)], wx)
+    # The same piecewise cubic in another basis: agreement to double rounding (values are ~1).
+    np.testing.assert_allclose(local, dense, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_kernel_demosaic_is_malvar_he_cutler_with_colour_demosaicings_borders(pattern):
+    mosaic = np.random.default_rng(3).integers(0, 1024, size=(22, 30)).astype(np.uint16)
+    unused = make_taps(np.zeros(1, np.int64), np.zeros((1, 4)))
+    fields = CorrectionFields(
+        black=np.zeros(4, np.float32),
+        channels=np.array(["RGB".index(c) for c in pattern]),
+        site_gains=np.ones(4, np.float32),
+        white=None,
+        white_rows=unused,
+        white_cols=make_taps(np.zeros((2, 1), np.int64), np.zeros((2, 1, 4))),
+        matrices=None,
+        matrix_rows=unused,
+        matrix_cols=unused,
+    )
+    expected = demosaic(mosaic.astype(np.float32), pattern)
+    # Exact, borders included: on integers below 2**10 every partial sum is a multiple of 1/16 below
+    # 2**13, which float32 holds exactly, as it does colour-demosaicing's float64 result.
+    np.testing.assert_array_equal(correct_numpy(mosaic, fields), expected)
+    if numba_available():
+        from picamcal.kernels import correct_numba
+
+        np.testing.assert_array_equal(correct_numba(mosaic, fields), correct_numpy(mosaic, fields))
+
+
+@pytest.fixture(scope="module")
+def larger():
+    return _scene("imx477", "RGGB", (1000, 800))
+
+
+def test_auto_falls_back_to_numpy_when_numba_cannot_be_imported(larger, monkeypatch):
+    cal, target = larger
+    expected = correct(target, cal, "centre", engine="numpy")
+    monkeypatch.setitem(sys.modules, "numba", None)  # import numba now raises ImportError
+    correct_module.numba_available.cache_clear()
+    try:
+
+        def no_numba(*args, **kwargs):
+            raise AssertionError("the numba kernel ran without numba")
+
+        monkeypatch.setattr(correct_module, "correct_numba", no_numba)
+        assert not correct_module.numba_available()
+        np.testing.assert_array_equal(correct(target, cal, "centre"), expected)
+        monkeypatch.undo()
+        monkeypatch.setitem(sys.modules, "numba", None)
+        with pytest.raises(ImportError):
+            correct(target, cal, "centre", engine="numba")
+    finally:
+        correct_module.numba_available.cache_clear()
+
+
+@pytest.mark.parametrize("engine", ["numpy", pytest.param("numba", marks=needs_numba)])
+def test_no_full_resolution_field_is_allocated(larger, engine):
+    cal, target = larger
+    output_bytes = target.height * target.width * 3 * 4
+    correct(target, cal, "centre", engine=engine)  # compile, and cache the fields
+    tracemalloc.start()
+    try:
+        correct(target, cal, "centre", engine=engine)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # The output plus a few rows (measured 1.01 with numba, 1.28 with numpy, 8.5 for the reference): one
+    # full-resolution 3x3 field alone would be 3 outputs, a full-resolution gain mosaic a third of one.
+    assert peak < 1.5 * output_bytes, peak / output_bytes
+    fields = correction_fields(cal, "centre", target.height, target.width)
+    arrays = [a for value in fields for a in (value if isinstance(value, tuple) else [value]) if a is not None]
+    assert sum(a.nbytes for a in arrays) < 0.1 * output_bytes
+
+
+def test_out_receives_the_result_and_is_checked(larger):
+    cal, target = larger
+    out = np.full((target.height, target.width, 3), np.nan, dtype=np.float32)
+    for engine in ("auto", "numpy", "reference"):
+        assert correct(target, cal, "flat", engine=engine, out=out) is out
+        np.testing.assert_allclose(out, correct(target, cal, "flat", engine="reference"), atol=FUSED_VS_REFERENCE)
+    with pytest.raises(ValueError, match="out must be"):
+        correct(target, cal, "flat", engine="numpy", out=out[:, :-2])
+    with pytest.raises(ValueError, match="out must be"):
+        correct(target, cal, "flat", engine="reference", out=out[:, :-2])
+    with pytest.raises(ValueError, match="binned"):
+        correct(target, cal, "flat", binned=True, out=out)
+    with pytest.raises(ValueError, match="unknown engine"):
+        correct(target, cal, "flat", engine="cuda")
+
+
+def test_cached_fields_follow_changes_to_the_calibration():
+    cal, target = _scene("imx219", "BGGR", (64, 48))
+    before = correct(target, cal, "centre", engine="numpy")
+    cal.arrays["unmixing"] = cal.unmixing * np.float32(0.5)  # a new array
+    np.testing.assert_allclose(correct(target, cal, "centre", engine="numpy"), before * 0.5, rtol=1e-5, atol=1e-6)
+    cal.unmixing[:] *= 2  # the same array, changed in place
+    np.testing.assert_allclose(correct(target, cal, "centre", engine="numpy"), before, rtol=1e-5, atol=1e-6)
+
+
+def test_black_level_is_per_site():
+    pattern = "BGGR"
+    cal, target = _scene("imx219", pattern, (64, 48))
+    shifted = RawImage(target.bayer + np.uint16(3), pattern, tuple(b + 3 for b in target.black_level), 1023, 10)
+    np.testing.assert_allclose(
+        correct(shifted, cal, "centre", engine="numpy"), correct(target, cal, "centre", engine="numpy"), atol=1e-6
+    )
