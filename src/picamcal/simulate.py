@@ -57,6 +57,7 @@ from scipy.special import ndtr
 
 from ._atomic import atomic_path
 from .bayer import bin_sites
+from .colour_wheel import SEGMENTS
 from .errors import OutputError, PicamcalError
 from .raw.brcm import write_brcm
 from .raw.dng import write_dng
@@ -92,14 +93,6 @@ _REFERENCE_AMOUNTS = {
     "black": (0.0, 0.0, 0.0),
 }
 
-_SEGMENTS = (
-    ("red", (1, 0, 0)),
-    ("yellow", (1, 1, 0)),
-    ("green", (0, 1, 0)),
-    ("cyan", (0, 1, 1)),
-    ("blue", (0, 0, 1)),
-    ("magenta", (1, 0, 1)),
-)
 # Wheel centres as fractions of the frame width and height.
 _WHEELS = (
     ("centre", 0.5, 0.5),
@@ -665,7 +658,7 @@ def wheel_layout(width: int, height: int) -> dict[str, Any]:
         "height": int(height),
         "segments": [
             {"name": name, "colour": list(colour), "start_deg": 60 * k, "end_deg": 60 * (k + 1)}
-            for k, (name, colour) in enumerate(_SEGMENTS)
+            for k, (name, colour) in enumerate(SEGMENTS)
         ],
         "wheels": [
             {"name": name, "x": round(fx * width - 0.5, 6), "y": round(fy * height - 0.5, 6), "radius": radius}

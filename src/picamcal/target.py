@@ -31,20 +31,12 @@ import numpy as np
 from PIL import Image
 
 from ._atomic import atomic_path
+from .colour_wheel import SEGMENTS
 from .errors import PicamcalError
 from .metrics import encode_srgb
 
 __all__ = ["render_target", "save_target", "target_layout"]
 
-SEGMENTS = (
-    ("red", (1, 0, 0)),
-    ("yellow", (1, 1, 0)),
-    ("green", (0, 1, 0)),
-    ("cyan", (0, 1, 1)),
-    ("blue", (0, 0, 1)),
-    ("magenta", (1, 0, 1)),
-)
-"""Segment names and sRGB colours, counter-clockwise from +x, 60 degrees each."""
 
 # Wheel positions: (name, column, row) with columns and rows -1, 0, 1 for left/top, middle, right/bottom.
 _WHEELS = (

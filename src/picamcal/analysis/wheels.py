@@ -35,19 +35,12 @@ from numpy.typing import ArrayLike
 from scipy import ndimage
 
 from .._atomic import atomic_path
+from ..colour_wheel import SEGMENTS
 from ..errors import PicamcalError
 from ..metrics import encode_srgb, hue_saturation, segment_colours, wheel_figures
 
 __all__ = ["analyse", "find_wheels", "polar_plot", "wheel_crops"]
 
-_DEFAULT_SEGMENTS = (
-    ("red", (1, 0, 0)),
-    ("yellow", (1, 1, 0)),
-    ("green", (0, 1, 0)),
-    ("cyan", (0, 1, 1)),
-    ("blue", (0, 0, 1)),
-    ("magenta", (1, 0, 1)),
-)
 _POSITION_NAMES = {
     (-1, -1): "top-left",
     (0, -1): "top",
@@ -639,7 +632,7 @@ def _wrap(angle: float) -> float:
 def _default_segments() -> list[dict[str, Any]]:
     return [
         {"name": name, "colour": list(colour), "start_deg": 60 * k, "end_deg": 60 * (k + 1)}
-        for k, (name, colour) in enumerate(_DEFAULT_SEGMENTS)
+        for k, (name, colour) in enumerate(SEGMENTS)
     ]
 
 
