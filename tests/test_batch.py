@@ -312,3 +312,25 @@ def test_a_folder_passes_over_npz_files_that_are_not_raw(tmp_path):
     write_npz(tmp_path / "frame.npz", raw)
     np.savez(tmp_path / "truth.npz", site_mixing=np.zeros(3))
     assert expand_inputs([tmp_path]) == [tmp_path / "frame.npz"]
+
+
+def test_zarr_mosaic_places_each_frame_as_its_tile_and_resumes(data, tmp_path):
+    zarr = pytest.importorskip("zarr")
+    frames = sorted(data["frames"].iterdir())[:5]
+    mosaic = tmp_path / "mosaic.zarr"
+    result = run_batch(data["cal"], frames, zarr_path=mosaic, mosaic=(3, 2), workers=2)
+    assert len(result.done) == 5 and not result.failed
+    array = zarr.open_array(mosaic / "0", mode="r")
+    height, width = tifffile.imread(data["reference"] / "f00.tiff").shape[:2]
+    assert array.shape == (1, 3, 2 * height, 3 * width) and array.chunks == (1, 1, height, width)
+    for index, frame in enumerate(frames):
+        row, column = divmod(index, 3)
+        tile = array[0, :, row * height : (row + 1) * height, column * width : (column + 1) * width]
+        np.testing.assert_array_equal(
+            np.moveaxis(tile, 0, -1), tifffile.imread(data["reference"] / f"{frame.stem}.tiff")
+        )
+    assert np.isnan(array[0, :, height:, 2 * width :]).all()  # the sixth tile: no frame, fill value
+    again = run_batch(data["cal"], frames, zarr_path=mosaic, mosaic=(3, 2), workers=0)
+    assert again.done == [] and len(again.skipped) == 5
+    with pytest.raises(PicamcalError, match="5 frames do not fit a mosaic of 2 x 2 tiles"):
+        run_batch(data["cal"], frames, zarr_path=tmp_path / "small.zarr", mosaic=(2, 2), workers=0)

@@ -113,6 +113,7 @@ class _Settings:
     compression: str | None
     overwrite: bool
     zarr_array: str | None  # absolute path of the stack's array, or None for TIFF files
+    mosaic: tuple[int, int] | None = None  # (columns, rows): frame i is the tile at row, column = divmod(i, columns)
 
 
 @dataclass(frozen=True)
@@ -213,6 +214,7 @@ def run_batch(
     overwrite: bool = False,
     compression: str | None = None,
     zarr_path: str | os.PathLike[str] | None = None,
+    mosaic: tuple[int, int] | None = None,
     processed: bool = False,
     input_encoding: str | None = None,
     pattern: str | None = None,
@@ -257,6 +259,10 @@ def run_batch(
         Compress TIFF files (zstd with the floating-point predictor; needs imagecodecs) or zarr chunks.
     zarr_path : path-like, optional
         Write one OME-Zarr stack here instead of TIFF files (see the module docstring).
+    mosaic : (columns, rows), optional
+        With ``zarr_path``: place the frames side by side as the tiles of one mosaic, in row-major order
+        (frame i at row ``i // columns``, column ``i % columns``), instead of stacking them; tiles do not
+        overlap, one chunk per tile and channel.
     processed : bool
         The inputs are ISP-processed images (JPEG, PNG, TIFF), corrected with
         :func:`picamcal.correct.correct_processed`.
@@ -314,6 +320,8 @@ def run_batch(
     linearise(np.zeros(1), decode)  # a bad encoding fails here, before any work
     if compression is not None and zarr_path is None:
         _require_imagecodecs()
+    if mosaic is not None and (zarr_path is None or min(mosaic) < 1):
+        raise ValueError("mosaic needs zarr_path and at least one column and one row")
 
     cal = load_calibration(calibration_path)
     if processed:
@@ -333,10 +341,13 @@ def run_batch(
         compression=compression,
         overwrite=overwrite,
         zarr_array=None if zarr_path is None else str(Path(zarr_path).absolute() / "0"),
+        mosaic=None if mosaic is None else (int(mosaic[0]), int(mosaic[1])),
     )
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
     sources = expand_inputs(inputs, PROCESSED_SUFFIXES if processed else RAW_SUFFIXES)
+    if mosaic is not None and len(sources) > mosaic[0] * mosaic[1]:
+        raise PicamcalError(f"{len(sources)} frames do not fit a mosaic of {mosaic[0]} x {mosaic[1]} tiles")
     if zarr_path is None:
         jobs, skipped = _plan_tiffs(sources, Path(out_dir), overwrite)
         stack = None
@@ -501,6 +512,7 @@ class _ZarrStack:
             "black_level": list(settings.black_level) if settings.black_level else None,
             "white": settings.white,
             "tuning": settings.tuning,
+            "mosaic": list(settings.mosaic) if settings.mosaic else None,
         }
         self.done: set[int] = set()
         self.resuming = False
@@ -544,10 +556,16 @@ class _ZarrStack:
             else:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
                 self.group = zarr.open_group(self.path, mode="w", zarr_format=3)
+                if self.settings.mosaic is None:
+                    shape = (len(self.sources), 3, height, width)
+                    chunks = (1, 1, min(height, _ZARR_TILE), min(width, _ZARR_TILE))
+                else:  # one chunk per tile and channel, so that no two workers ever write the same chunk
+                    columns, rows = self.settings.mosaic
+                    shape, chunks = (1, 3, rows * height, columns * width), (1, 1, height, width)
                 self.group.create_array(
                     "0",
-                    shape=(len(self.sources), 3, height, width),
-                    chunks=(1, 1, min(height, _ZARR_TILE), min(width, _ZARR_TILE)),
+                    shape=shape,
+                    chunks=chunks,
                     dtype="float32",
                     fill_value=np.nan,
                     compressors=zarr.codecs.ZstdCodec() if compression == "zstd" else None,
@@ -887,7 +905,7 @@ def _correct_processed(image: ProcessedImage, cal: Calibration, settings: _Setti
 
 def _write(settings: _Settings, job: _Job, rgb: np.ndarray) -> None:
     if settings.zarr_array is not None:
-        _write_frame(settings.zarr_array, job, rgb)
+        _write_frame(settings.zarr_array, job, rgb, settings.mosaic)
         return
     info: dict[str, Any] = {
         "source": Path(job.source).name,
@@ -920,18 +938,23 @@ def _write_compressed_tiff(path: Path, rgb: np.ndarray, info: dict[str, Any], se
         )
 
 
-def _write_frame(array_path: str, job: _Job, rgb: np.ndarray) -> None:
+def _write_frame(array_path: str, job: _Job, rgb: np.ndarray, mosaic: tuple[int, int] | None = None) -> None:
     import zarr
 
     array = zarr.open_array(array_path, mode="r+")
     frame = np.moveaxis(np.asarray(rgb, dtype=np.float32), -1, 0)
-    if frame.shape != array.shape[1:]:
+    tile = array.chunks[2:] if mosaic is not None else array.shape[2:]
+    if frame.shape[1:] != tuple(tile):
         raise PicamcalError(
-            f"is {frame.shape[2]}x{frame.shape[1]}, the stack's frames are {array.shape[3]}x{array.shape[2]}",
-            job.source,
+            f"is {frame.shape[2]}x{frame.shape[1]}, the stack's frames are {tile[1]}x{tile[0]}", job.source
         )
     try:
-        array[job.index] = frame
+        if mosaic is None:
+            array[job.index] = frame
+        else:
+            row, column = divmod(job.index, mosaic[0])
+            height, width = tile
+            array[0, :, row * height : (row + 1) * height, column * width : (column + 1) * width] = frame
     except OSError as exc:
         raise OutputError(f"cannot write frame {job.index}: {exc.strerror or exc}", Path(array_path).parent) from exc
 

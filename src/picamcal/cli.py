@@ -161,6 +161,10 @@ def correct_cmd(
     zarr_path: Annotated[
         Path | None, typer.Option("--zarr", help="Write one OME-Zarr stack (t, c, y, x) instead of TIFF files.")
     ] = None,
+    mosaic: Annotated[
+        str | None,
+        typer.Option(help="With --zarr: place the frames as COLUMNSxROWS tiles of one mosaic, row by row."),
+    ] = None,
     mode: Annotated[str, typer.Option(help=MODE_HELP)] = "centre",
     binned: Annotated[bool, typer.Option(help="Write the bin-resolution image instead of full resolution.")] = False,
     processed: Annotated[
@@ -243,6 +247,7 @@ def correct_cmd(
             inputs,
             out,
             zarr_path=zarr_path,
+            mosaic=_parse_tiles(mosaic),
             mode=mode,
             binned=binned,
             workers=workers,
@@ -278,6 +283,18 @@ def _load_tuning(path: Path) -> dict:
     from .export.tuning import load_tuning
 
     return load_tuning(path)
+
+
+def _parse_tiles(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        columns, rows = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise typer.BadParameter(f"{text!r} is not COLUMNSxROWS", param_hint="--mosaic") from None
+    if columns < 1 or rows < 1:
+        raise typer.BadParameter("give at least one column and one row", param_hint="--mosaic")
+    return columns, rows
 
 
 def _parse_size(size: str | None) -> tuple[int, int] | None:
