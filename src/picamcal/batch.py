@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import errno
 import glob
-import hashlib
 import json
 import multiprocessing
 import os
@@ -47,8 +46,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tifffile
 
+from ._files import sha256_file
 from .calibration import MODES, Calibration, load_calibration
 from .correct import correct, correct_processed
 from .errors import OutputError, PicamcalError, PicamcalWarning, RawFormatError
@@ -328,7 +327,7 @@ def run_batch(
         _check_processed_references(white, tuning, decode)
     settings = _Settings(
         calibration=str(Path(calibration_path).absolute()),
-        calibration_sha256=_sha256(Path(calibration_path)),
+        calibration_sha256=sha256_file(Path(calibration_path)),
         mode=mode,
         binned=binned,
         processed=processed,
@@ -403,10 +402,6 @@ def _check_processed_references(white: Any, tuning: Any, decode: str) -> None:
         from .export.tuning import load_tuning
 
         load_tuning(tuning)
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _plan_tiffs(sources: list[Path], out_dir: Path, overwrite: bool) -> tuple[list[_Job], list[Path]]:
@@ -848,7 +843,7 @@ def _calibration(settings: _Settings) -> Calibration:
         path = Path(settings.calibration)
         if not path.is_file():
             raise PicamcalError("no such calibration file", path)
-        if _sha256(path) != settings.calibration_sha256:
+        if sha256_file(path) != settings.calibration_sha256:
             raise PicamcalError("is not the calibration the batch started with (it changed, or is another file)", path)
         return load_calibration(path)
 
@@ -915,27 +910,7 @@ def _write(settings: _Settings, job: _Job, rgb: np.ndarray) -> None:
     }
     if settings.processed:
         info["input_encoding"] = settings.input_encoding
-    if settings.compression is None:
-        write_rgb_tiff(job.target, rgb, info, overwrite=settings.overwrite)
-    else:
-        _write_compressed_tiff(Path(job.target), rgb, info, settings)
-
-
-def _write_compressed_tiff(path: Path, rgb: np.ndarray, info: dict[str, Any], settings: _Settings) -> None:
-    """write_rgb_tiff's file, compressed (zstd, floating-point predictor: lossless)."""
-    from ._atomic import atomic_path
-
-    with atomic_path(path, overwrite=settings.overwrite) as tmp:
-        tifffile.imwrite(
-            tmp,
-            np.ascontiguousarray(rgb, dtype=np.float32),
-            photometric="rgb",
-            description=json.dumps({"picamcal": info}),
-            software="picamcal",
-            metadata=None,
-            compression=settings.compression,
-            predictor=True,
-        )
+    write_rgb_tiff(job.target, rgb, info, overwrite=settings.overwrite, compression=settings.compression)
 
 
 def _write_frame(array_path: str, job: _Job, rgb: np.ndarray, mosaic: tuple[int, int] | None = None) -> None:

@@ -478,8 +478,10 @@ def _numba_kernel():
             rows, planar, unmixed, along = ring[t], rgb[t], mixed[t], white_along[t]
             y0 = block * block_rows
             y1 = min(y0 + block_rows, height)
-            for y in range(y0 - 2, y0 + 2):
-                source = -y - 1 if y < 0 else (2 * height - 1 - y if y >= height else y)
+            # Flat-field row r into the 5-row ring (rows beyond the image mirrored), then demosaic the row two
+            # behind it, once its neighbours r - 4 .. r are all in the ring.
+            for r in range(y0 - 2, y1 + 2):
+                source = -r - 1 if r < 0 else (2 * height - 1 - r if r >= height else r)
                 _nb_flat_row(
                     bayer,
                     source,
@@ -493,26 +495,11 @@ def _numba_kernel():
                     wweights,
                     wruns,
                     along,
-                    rows[(y + 5) % 5],
+                    rows[(r + 5) % 5],
                 )
-            for y in range(y0, y1):
-                ahead = y + 2
-                source = 2 * height - 1 - ahead if ahead >= height else ahead
-                _nb_flat_row(
-                    bayer,
-                    source,
-                    black,
-                    site_gains,
-                    flat,
-                    white,
-                    wiy,
-                    wwy,
-                    wfirst,
-                    wweights,
-                    wruns,
-                    along,
-                    rows[ahead % 5],
-                )
+                y = r - 2
+                if y < y0:
+                    continue
                 _nb_demosaic_row(
                     rows[(y + 3) % 5],
                     rows[(y + 4) % 5],

@@ -14,9 +14,15 @@ from ._atomic import atomic_path
 
 
 def write_rgb_tiff(
-    path: str | os.PathLike[str], rgb: np.ndarray, metadata: dict[str, Any] | None = None, overwrite: bool = False
+    path: str | os.PathLike[str],
+    rgb: np.ndarray,
+    metadata: dict[str, Any] | None = None,
+    overwrite: bool = False,
+    compression: str | None = None,
 ) -> Path:
     """Write a float32 (H, W, 3) linear RGB image as a TIFF, with a JSON description, atomically.
+
+    ``compression="zstd"`` compresses losslessly with the floating-point predictor (needs imagecodecs).
 
     Examples
     --------
@@ -31,5 +37,6 @@ def write_rgb_tiff(
             description=json.dumps({"picamcal": metadata or {}}),
             software="picamcal",
             metadata=None,
+            **({"compression": compression, "predictor": True} if compression else {}),
         )
     return path
