@@ -105,11 +105,11 @@ class _Settings:
     processed: bool
     input_encoding: str  # as given: recorded in the outputs' metadata
     decode: str  # the same encoding with an absolute tuning path, for workers with another working folder
-    pattern: str | None
-    black_level: tuple[float, ...] | None
+    read_options: dict[str, Any]  # keyword arguments of read_raw: pattern, black_level, raw_format, size, ...
     white: str | None
     tuning: str | None
     compression: str | None
+    output_format: str  # one of picamcal.output.OUTPUT_FORMATS
     overwrite: bool
     zarr_array: str | None  # absolute path of the stack's array, or None for TIFF files
     mosaic: tuple[int, int] | None = None  # (columns, rows): frame i is the tile at row, column = divmod(i, columns)
@@ -218,6 +218,12 @@ def run_batch(
     input_encoding: str | None = None,
     pattern: str | None = None,
     black_level: float | Sequence[float] | None = None,
+    raw_format: str | None = None,
+    raw_size: tuple[int, int] | None = None,
+    stride: int | None = None,
+    frame: int | None = None,
+    sensor: str | None = None,
+    output_format: str = "float32-tiff",
     white: str | os.PathLike[str] | None = None,
     tuning: str | os.PathLike[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
@@ -270,6 +276,11 @@ def run_batch(
         default the ``tuning`` file's curve if given, else ``srgb``.
     pattern, black_level : optional
         Override the raw files' Bayer order and black level (:func:`picamcal.read_raw`).
+    raw_format, raw_size, stride, frame, sensor : optional
+        Read headless raw dumps (``rpicam-raw``): their libcamera format name, (width, height), row stride in
+        bytes, frame number and sensor (:func:`picamcal.read_raw`'s ``raw_format``, ``size``, ...).
+    output_format : str
+        One of :data:`picamcal.output.OUTPUT_FORMATS` (default ``float32-tiff``).
     white : path-like, optional
         With ``processed``: a processed white reference (residual flat field).
     tuning : path-like, optional
@@ -333,11 +344,19 @@ def run_batch(
         processed=processed,
         input_encoding=input_encoding,
         decode=decode,
-        pattern=pattern,
-        black_level=None if black_level is None else tuple(np.atleast_1d(black_level).astype(float).tolist()),
+        read_options={
+            "pattern": pattern,
+            "black_level": None if black_level is None else tuple(np.atleast_1d(black_level).astype(float).tolist()),
+            "raw_format": raw_format,
+            "size": raw_size,
+            "stride": stride,
+            "frame": frame,
+            "sensor": sensor,
+        },
         white=None if white is None else str(Path(white).absolute()),
         tuning=None if tuning is None else str(Path(tuning).absolute()),
         compression=compression,
+        output_format=output_format,
         overwrite=overwrite,
         zarr_array=None if zarr_path is None else str(Path(zarr_path).absolute() / "0"),
         mosaic=None if mosaic is None else (int(mosaic[0]), int(mosaic[1])),
@@ -437,7 +456,7 @@ def _preflight(cal: Calibration, sources: list[Path], jobs: list[_Job], settings
             return image.rgb.shape
         return (cal.height, cal.width, 3)
     try:
-        raw = read_raw(sources[jobs[0].index], pattern=settings.pattern, black_level=settings.black_level, verify=False)
+        raw = read_raw(sources[jobs[0].index], **settings.read_options, verify=False)
     except RawFormatError:
         pass
     else:
@@ -503,8 +522,7 @@ class _ZarrStack:
             "binned": settings.binned,
             "processed": settings.processed,
             "input_encoding": settings.input_encoding if settings.processed else None,
-            "pattern": settings.pattern,
-            "black_level": list(settings.black_level) if settings.black_level else None,
+            "read_options": {k: list(v) if isinstance(v, tuple) else v for k, v in settings.read_options.items()},
             "white": settings.white,
             "tuning": settings.tuning,
             "mosaic": list(settings.mosaic) if settings.mosaic else None,
@@ -700,9 +718,14 @@ class _Pool:
 
 
 def _init_worker(threads: int) -> None:
-    """Share the cores among the workers: numba's parallel kernels (imported later, on first use) would
-    otherwise start a thread per core in every worker."""
-    os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+    """Share the cores among the workers: numba's parallel kernels would otherwise use a thread per core in
+    every worker. numba's own runtime setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it
+    compiles and refuses a value that differs from the threads it has started."""
+    try:
+        import numba
+    except ImportError:  # no numba (32-bit Raspberry Pi OS): the numpy path runs in one thread anyway
+        return
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
 
 
 class _Dask:
@@ -876,7 +899,7 @@ def _correct_file(settings: _Settings, source: Path) -> np.ndarray:
     cal = _calibration(settings)
     if settings.processed:
         return _correct_processed(read_processed(source, settings.decode), cal, settings)
-    raw = read_raw(source, pattern=settings.pattern, black_level=settings.black_level)
+    raw = read_raw(source, **settings.read_options)
     return correct(raw, cal, mode=settings.mode, binned=settings.binned)
 
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import sys
 import warnings
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -48,16 +49,71 @@ def _black_level(text: str | None) -> list[float] | None:
     return values
 
 
-def _reader(pattern: str | None, black_level: str | None):
-    """A read_raw with the command's overrides applied."""
+RawFormatOption = Annotated[
+    str | None,
+    typer.Option(
+        "--raw-format",
+        help="Read headless raw dumps (rpicam-raw, libcamera-raw) in this libcamera format: SBGGR10_CSI2P, "
+        "SRGGB12_CSI2P, SGBRG16, ...",
+    ),
+]
+RawSizeOption = Annotated[str | None, typer.Option("--size", help="With --raw-format: WIDTHxHEIGHT of a frame.")]
+StrideOption = Annotated[
+    int | None, typer.Option("--stride", help="With --raw-format: bytes per row (default: libcamera's alignment).")
+]
+FrameOption = Annotated[
+    int | None, typer.Option("--frame", help="With --raw-format: the frame of a multi-frame dump (0 = the first).")
+]
+RawSensorOption = Annotated[
+    str | None, typer.Option("--sensor", help="The sensor, for files that do not say (headless dumps).")
+]
+
+
+def _choice(value: str, choices: Sequence[str], option: str) -> str:
+    """``value`` as one of ``choices``, compared case-insensitively; a near miss gets "did you mean"."""
+    import difflib
+
+    by_key = {c.lower(): c for c in choices}
+    if value.lower() in by_key:
+        return by_key[value.lower()]
+    close = difflib.get_close_matches(value.lower(), list(by_key), n=1, cutoff=0.6)
+    hint = f"; did you mean {by_key[close[0]]}?" if close else ""
+    raise typer.BadParameter(f"{value!r} is not one of {', '.join(choices)}{hint}", param_hint=option)
+
+
+def _read_options(
+    pattern: str | None,
+    black_level: str | None,
+    raw_format: str | None = None,
+    size: str | None = None,
+    stride: int | None = None,
+    frame: int | None = None,
+    sensor: str | None = None,
+) -> dict[str, Any]:
+    """The keyword arguments of read_raw that a command's reading options stand for."""
+    from .raw import PATTERNS
+
+    if raw_format is None and (size is not None or stride is not None or frame is not None):
+        raise typer.BadParameter("--size, --stride and --frame describe a headless dump: give --raw-format too")
+    return {
+        "pattern": None if pattern is None else _choice(pattern, PATTERNS, "--pattern"),
+        "black_level": _black_level(black_level),
+        "raw_format": raw_format,
+        "size": _parse_size(size, "--size") if size is not None else None,
+        "stride": stride,
+        "frame": frame,
+        "sensor": sensor,
+    }
+
+
+def _reader(pattern: str | None, black_level: str | None, **headless: Any) -> Callable[[Path], Any]:
+    """A read_raw with the command's overrides and headless-dump options applied."""
     from .raw import read_raw
 
-    levels = _black_level(black_level)
-    if pattern is not None:
-        pattern = pattern.upper()
+    options = _read_options(pattern, black_level, **headless)
 
     def read(path: Path):
-        return read_raw(path, pattern=pattern, black_level=levels)
+        return read_raw(path, **options)
 
     return read
 
@@ -117,6 +173,11 @@ def calibrate_cmd(
     smoothing: Annotated[float, typer.Option(help="Gaussian smoothing of the fields, in bins (0 = none).")] = 0.0,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
+    raw_format: RawFormatOption = None,
+    size: RawSizeOption = None,
+    stride: StrideOption = None,
+    frame: FrameOption = None,
+    sensor: RawSensorOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Measure the flat field and colour-unmixing field from reference images (or in situ, with --unmixing-from)."""
@@ -135,7 +196,7 @@ def calibrate_cmd(
     inputs = [*refs.values(), *([unmixing_from] if unmixing_from else [])]
     if any(_same_file(out, p) for p in inputs):
         raise OutputError("is one of the input files; choose another --out", out)
-    read = _reader(pattern, black_level)
+    read = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
     with console.status("calibrating"):
         if unmixing_from is not None:
             black_raw = read(refs["black"]) if "black" in refs else None
@@ -187,8 +248,20 @@ def correct_cmd(
     white_image: Annotated[
         Path | None, typer.Option("--white", help="With --processed: a processed white reference (residual flat).")
     ] = None,
+    output_format: Annotated[
+        str,
+        typer.Option(
+            help="float32-tiff (linear, white = 1.0), uint16-tiff (linear, scale in the metadata), srgb-png, "
+            "srgb-png16 or srgb-jpeg (colour-managed, to look at)."
+        ),
+    ] = "float32-tiff",
     pattern: PatternOption = None,
     black_level: BlackOption = None,
+    raw_format: RawFormatOption = None,
+    size: RawSizeOption = None,
+    stride: StrideOption = None,
+    frame: FrameOption = None,
+    sensor: RawSensorOption = None,
     workers: Annotated[
         int | None, typer.Option(help="Worker processes (default: one per core; 0: no pool, work in this process).")
     ] = None,
@@ -211,9 +284,9 @@ def correct_cmd(
 
     from .batch import run_batch
     from .calibration import MODES
+    from .output import OUTPUT_FORMATS
 
-    if mode not in MODES:
-        raise typer.BadParameter(f"{mode!r} is not one of {', '.join(MODES)}", param_hint="--mode")
+    mode = _choice(mode, MODES, "--mode")
     if (white_image is not None or tuning_file is not None or input_encoding is not None) and not processed:
         raise typer.BadParameter("--white, --tuning and --input-encoding go with --processed")
     if processed and binned:
@@ -256,8 +329,8 @@ def correct_cmd(
             compression=compression,
             processed=processed,
             input_encoding=input_encoding,
-            pattern=pattern.upper() if pattern is not None else None,
-            black_level=_black_level(black_level),
+            output_format=_choice(output_format, OUTPUT_FORMATS, "--output-format"),
+            **_batch_read_options(pattern, black_level, raw_format, size, stride, frame, sensor),
             white=white_image,
             tuning=tuning_file,
             progress=show,
@@ -279,6 +352,13 @@ def correct_cmd(
         raise typer.Exit(1)
 
 
+def _batch_read_options(*args: Any) -> dict[str, Any]:
+    """run_batch's keywords for the reading options (its ``raw_size`` is read_raw's ``size``)."""
+    options = _read_options(*args)
+    options["raw_size"] = options.pop("size")
+    return options
+
+
 def _load_tuning(path: Path) -> dict:
     from .export.tuning import load_tuning
 
@@ -297,15 +377,15 @@ def _parse_tiles(text: str | None) -> tuple[int, int] | None:
     return columns, rows
 
 
-def _parse_size(size: str | None) -> tuple[int, int] | None:
+def _parse_size(size: str | None, option: str = "--size") -> tuple[int, int] | None:
     if size is None:
         return None
     try:
         w, h = (int(v) for v in size.lower().split("x"))
     except ValueError:
-        raise typer.BadParameter(f"{size!r} is not WIDTHxHEIGHT", param_hint="--size") from None
+        raise typer.BadParameter(f"{size!r} is not WIDTHxHEIGHT", param_hint=option) from None
     if w < 16 or h < 16 or w % 2 or h % 2:
-        raise typer.BadParameter("width and height must be even and at least 16", param_hint="--size")
+        raise typer.BadParameter("width and height must be even and at least 16", param_hint=option)
     return w, h
 
 
@@ -429,6 +509,10 @@ def apply_tuning_cmd(
     ct: Annotated[float | None, typer.Option(help="Colour temperature for the tables (default: the file's).")] = None,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
+    raw_format: RawFormatOption = None,
+    size: RawSizeOption = None,
+    stride: StrideOption = None,
+    frame: FrameOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
@@ -436,12 +520,12 @@ def apply_tuning_cmd(
     from .output import write_rgb_tiff
 
     tuning = _load_tuning(tuning_file)
-    raw = _reader(pattern, black_level)(image)
+    raw = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame)(image)
     if _same_file(out, image):
         raise OutputError("would replace the input image; choose another --out", out)
     gains = _numbers(colour_gains, 2, "--colour-gains")
     crop = _numbers(sensor_crop, 4, "--sensor-crop")
-    full = _parse_size(sensor_size) if sensor_size is not None else full_sensor_size(raw)
+    full = _parse_size(sensor_size, "--sensor-size") if sensor_size is not None else full_sensor_size(raw)
     mode = mode_for_image(full, (raw.width, raw.height), tuple(int(v) for v in crop) if crop else None)
     rgb = apply_tuning(raw, tuning, colour_gains=gains, ccm=ccm, mode=mode, ct=ct)
     info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm}
@@ -467,6 +551,11 @@ def inspect_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
+    raw_format: RawFormatOption = None,
+    size: RawSizeOption = None,
+    stride: StrideOption = None,
+    frame: FrameOption = None,
+    sensor: RawSensorOption = None,
 ) -> None:
     """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong."""
     import json
@@ -474,7 +563,7 @@ def inspect_cmd(
 
     from .inspect import describe
 
-    read = _reader(pattern, black_level)
+    read = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
     records = []
     for path in files:
         with warnings.catch_warnings(record=True) as caught:

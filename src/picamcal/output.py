@@ -12,6 +12,9 @@ import tifffile
 
 from ._atomic import atomic_path
 
+#: What ``picamcal correct --output-format`` writes: linear float32 or uint16 TIFF, or colour-managed sRGB images.
+OUTPUT_FORMATS = ("float32-tiff", "uint16-tiff", "srgb-png", "srgb-png16", "srgb-jpeg")
+
 
 def write_rgb_tiff(
     path: str | os.PathLike[str],

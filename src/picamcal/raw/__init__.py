@@ -53,6 +53,11 @@ def read_raw(
     *,
     pattern: str | None = None,
     black_level: float | Sequence[float] | None = None,
+    raw_format: str | None = None,
+    size: tuple[int, int] | None = None,
+    stride: int | None = None,
+    frame: int | None = None,
+    sensor: str | None = None,
     verify: bool = True,
 ) -> RawImage:
     """Read a raw Bayer image from a file, whatever its format.
@@ -73,6 +78,17 @@ def read_raw(
         Override the file's Bayer order (``RGGB``, ``GBRG``, ``BGGR``, ``GRBG``).
     black_level : float or 4 floats, optional
         Override the file's black level (DN; one value, or one per 2x2 site row-major).
+    raw_format : str, optional
+        Read the file as a headless raw dump (``rpicam-raw``, ``libcamera-raw``) in this libcamera format
+        (``SBGGR10_CSI2P``, ``SRGGB12_CSI2P``, ``SGBRG16``, ...); needs ``size``.
+    size : (width, height), optional
+        With ``raw_format``: the frame size in pixels.
+    stride : int, optional
+        With ``raw_format``: bytes per row (default: libcamera's alignment).
+    frame : int, optional
+        With ``raw_format``: which frame of a dump of several frames (default 0, the first).
+    sensor : str, optional
+        The sensor, for files that do not say (a headless dump): its registry constants are used.
     verify : bool
         Check the declared metadata against the data and warn.
 
