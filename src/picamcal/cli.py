@@ -844,12 +844,53 @@ def _warn(message, category, filename, lineno, file=None, line=None) -> None:
         print(f"picamcal: warning: {message}", file=sys.stderr)
 
 
+def _spread_role_options(args: list[str]) -> list[str]:
+    """``calibrate --white a.dng b.dng`` as ``--white a.dng --white b.dng``: several frames per reference role.
+
+    Click options take one value each; the values after a role option that name existing files (not folders,
+    not options) are taken as more frames of that role.
+    """
+    if "calibrate" not in args[:1]:
+        return args
+    roles = {f"--{role}" for role in ("white", "red", "green", "blue", "black")}
+    out: list[str] = []
+    role = None
+    for arg in args:
+        if arg in roles:
+            role = arg
+        elif role is not None and out and out[-1] != role and not arg.startswith("-") and Path(arg).is_file():
+            out.append(role)
+        elif arg.startswith("-") or out[-1:] != [role]:
+            role = None
+        out.append(arg)
+    return out
+
+
+def _fail(message: str) -> None:
+    """The one error line every problem ends in (never wrapped, whatever the terminal), and exit status 2."""
+    print(f"picamcal: error: {' '.join(message.split())}", file=sys.stderr)
+    sys.exit(2)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``picamcal`` command: runs the app and turns errors into exit status 2."""
+    """Entry point of the ``picamcal`` command: runs the app and turns every error into one line and exit status 2."""
+    try:  # typer 0.2x carries its own copy of click
+        from typer._click import exceptions as click
+    except ImportError:
+        from click import exceptions as click
+
     warnings.showwarning = _warn
+    args = _spread_role_options(list(sys.argv[1:] if argv is None else argv))
     try:
-        # Typer reports usage errors itself (exit status 2); the library's errors reach us here.
-        app(args=argv, prog_name="picamcal")
+        code = app(args=args, prog_name="picamcal", standalone_mode=False)
+    except click.UsageError as exc:
+        command = exc.ctx.command_path if exc.ctx is not None else "picamcal"
+        _fail(f"{exc.format_message().rstrip('.')} (see {command} --help)")
+    except click.ClickException as exc:
+        _fail(exc.format_message())
+    except typer.Abort:
+        print("picamcal: interrupted", file=sys.stderr)
+        sys.exit(130)
     except PicamcalError as exc:
-        print(f"picamcal: error: {exc}", file=sys.stderr)
-        sys.exit(2)
+        _fail(str(exc))
+    sys.exit(code if isinstance(code, int) else 0)
