@@ -26,6 +26,23 @@ def site_channels(pattern: str) -> np.ndarray:
     return np.array([CHANNELS.index(c) for c in pattern], dtype=np.intp)
 
 
+def require_black_level(raw: RawImage) -> None:
+    """Raise if ``raw``'s black level is unknown (NaN): the file records none and its sensor is not known.
+
+    Never take 0 silently: a wrong black level skews every ratio the calibration measures.
+
+    Examples
+    --------
+    >>> require_black_level(RawImage(np.zeros((2, 2), np.uint16), "RGGB", 64, 1023, 10))
+    """
+    if not np.all(np.isfinite(raw.black_level)):
+        raise RawFormatError(
+            "no black level: the file records none and its sensor is not in picamcal's registry; give "
+            "--black-level N, a dark frame (--black FILE) or --sensor NAME",
+            raw.source,
+        )
+
+
 @dataclass
 class RawImage:
     """A raw Bayer mosaic with what is needed to interpret it.
@@ -37,7 +54,8 @@ class RawImage:
     pattern : str
         Colours of the top-left 2x2 block read row-wise: ``"RGGB"``, ``"GBRG"``, ``"BGGR"`` or ``"GRBG"``.
     black_level : tuple of 4 float
-        Black level in DN of each site of the 2x2 block, row-major.
+        Black level in DN of each site of the 2x2 block, row-major; NaN where unknown (a headless dump of a
+        sensor picamcal does not know, with no level given): see :func:`require_black_level`.
     white_level : int
         Saturation value in DN.
     bit_depth : int
