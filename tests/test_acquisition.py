@@ -17,9 +17,10 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
-import tifffile
 
 from picamcal import calibrate, read_raw
+from picamcal._atomic import atomic_path
+from picamcal.acquire import acquisition
 from picamcal.acquire.acquisition import (
     AcquisitionError,
     AcquisitionInterrupted,
@@ -238,15 +239,16 @@ def test_ctrl_c_at_a_prompt_keeps_the_frames_and_a_rerun_captures_only_the_rest(
 
 
 def test_a_full_disk_is_reported_and_the_written_frames_are_kept(tmp_path, monkeypatch):
-    real_imwrite, calls = tifffile.imwrite, []
+    real_write, calls = acquisition.write_dng, []
 
-    def imwrite(*args, **kwargs):
+    def write_dng(path, raw, overwrite=True):  # the third frame's write finds the disk full, as the OS says it
         calls.append(1)
         if len(calls) == 3:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return real_imwrite(*args, **kwargs)
+            with atomic_path(path, overwrite=overwrite):
+                raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(path, raw, overwrite=overwrite)
 
-    monkeypatch.setattr(tifffile, "imwrite", imwrite)
+    monkeypatch.setattr(acquisition, "write_dng", write_dng)
     camera = sim_camera()
     with pytest.raises(OutputError, match=r"the disk is full: free some space; white, red captured and kept"):
         acquire(camera, camera.light, tmp_path, settle_s=0)
@@ -257,7 +259,7 @@ def test_a_full_disk_is_reported_and_the_written_frames_are_kept(tmp_path, monke
         "white.dng",
         "white.json",
     ]
-    monkeypatch.setattr(tifffile, "imwrite", real_imwrite)
+    monkeypatch.setattr(acquisition, "write_dng", real_write)
     acquire(camera, camera.light, tmp_path, settle_s=0)
     assert load_manifest(tmp_path)["complete"]
 

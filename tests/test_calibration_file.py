@@ -65,17 +65,20 @@ def test_save_refuses_to_overwrite_when_asked(tmp_path, cal):
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
-        (lambda p: p.write_bytes(b"not a zip"), "not a readable picamcal calibration"),
+        (lambda p: p.write_bytes(b"not a zip"), r"not a picamcal calibration file \(not an .npz archive\)"),
         (lambda p: p.write_bytes(p.read_bytes()[:200]), "not a readable picamcal calibration"),
-        (lambda p: np.savez(p, x=np.zeros(2)), "not a readable picamcal calibration"),
+        (lambda p: np.savez(p, x=np.zeros(2)), r"not a picamcal calibration file \(an .npz without its record\)"),
         (lambda p: np.savez(p, metadata=np.array(json.dumps({"schema": "other"}))), "not a picamcal calibration"),
+        (lambda p: np.savez(p, metadata=np.array([{"a": 1}], dtype=object)), "holds Python objects"),
+        (lambda p: np.savez(p, metadata=np.array("{not json")), "its record is not JSON"),
     ],
 )
 def test_corrupt_files_are_refused(tmp_path, cal, damage, message):
     path = cal.save(tmp_path / "cal.npz")
     damage(path)
-    with pytest.raises(CalibrationFileError, match=message):
+    with pytest.raises(CalibrationFileError, match=message) as caught:
         load_calibration(path)
+    assert "allow_pickle" not in str(caught.value)  # numpy's advice does not apply to a calibration
 
 
 def _rewrite(path, **changes):

@@ -32,7 +32,7 @@ from picamcal.analysis.diagnostics import (
     roughness,
     vignetting_centre,
 )
-from picamcal.errors import OutputError
+from picamcal.errors import CalibrationFileError, OutputError
 from picamcal.raw import RawImage
 from picamcal.simulate import make_camera, simulate_references
 
@@ -336,3 +336,36 @@ def test_figures_refuse_bad_arguments_and_respect_overwrite(tmp_path, dusty_tilt
     path = figures.dust_map(cal, tmp_path / "dust.png")
     with pytest.raises(OutputError):
         figures.dust_map(cal, path, overwrite=False)
+
+
+# Flat-field calibrations (white only) -------------------------------------------------------------------
+
+
+def test_a_flat_calibration_gets_the_flat_field_checks_with_the_full_ones_numbers():
+    _, refs = simulated((2.0, -1.0), seed=0, dust=4)
+    full = diagnose(calibrated(refs))
+    flat_cal = calibrate(refs["white"], black=refs["black"])
+    flat = diagnose(flat_cal, cra_corner_deg=None)
+    assert [c.name for c in flat] == CHECK_NAMES[:3] and diagnostics.UNMIXING_CHECKS == tuple(CHECK_NAMES[3:])
+    # The same white gives the same flat field, so the same verdicts and numbers, exposure apart (no colours).
+    for check, same in zip(flat[:2], full[:2], strict=True):
+        assert check.to_dict() == same.to_dict()
+    assert flat[0].verdict == "warn" and flat[1].verdict == "warn"  # the 2 degree tilt and the dust are found
+    assert set(flat[2].values["levels"]) == {"white"} and flat[2].verdict == "pass"
+    for check in (check_conditioning, check_noise_penalty, check_unmixing_smoothness):
+        with pytest.raises(CalibrationFileError, match="no colour unmixing for the"):
+            check(flat_cal)
+
+
+@pytest.mark.parametrize("function", [figures.noise_penalty_maps, figures.normalised_references])
+def test_figures_of_a_flat_calibration_draw_the_white_alone(tmp_path, function):
+    _, refs = simulated(size=(320, 240))
+    flat_cal = calibrate(refs["white"])
+    path = function(flat_cal, tmp_path / "f.png")
+    full_path = function(calibrated(refs), tmp_path / "full.png")
+    with Image.open(path) as flat_image, Image.open(full_path) as full_image:
+        # One panel instead of two (noise penalty: flat without centre) or four (white without red, green, blue):
+        # the figures are 1.3 and 1.4 times as wide as high, against 2.3 and 2.5 with every panel.
+        assert flat_image.size[0] / flat_image.size[1] < 1.6 < 2.0 < full_image.size[0] / full_image.size[1]
+    with pytest.raises(CalibrationFileError, match="no colour unmixing for mode centre"):
+        figures.unmixing_grid(flat_cal, tmp_path / "u.png")

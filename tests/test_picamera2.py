@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from picamcal.errors import OutputError, PicamcalWarning, RawFormatError
-from picamcal.raw.model import PATTERNS, RawImage
+from picamcal.raw.model import PATTERNS, RawImage, require_black_level
 from picamcal.raw.packing import pack, packed_row_bytes
 from picamcal.raw.picamera2 import capture_raw, from_picamera2, is_npy, read_picamera2_npy, write_picamera2_npy
 
@@ -183,16 +183,47 @@ def test_sensor_black_levels_map_to_sites_and_scale_from_16_bits(pattern, sites,
     assert raw.metadata["black_level_source"] == "SensorBlackLevels"
 
 
-def test_black_level_falls_back_to_the_registry_then_zero_with_a_warning():
+def test_black_level_falls_back_to_the_registry_then_unknown_never_zero():
     buffer = _unpacked_buffer(_mosaic(12, width=8), 12, 32)
     config = _config("SRGGB12", 8, 6, 32)
     raw = from_picamera2(buffer, {**config, "model": "imx477"})  # the HQ camera: 256 DN at 12 bits
     assert (raw.sensor, raw.black_level, raw.metadata["black_level_source"]) == ("imx477", (256.0,) * 4, "registry")
     raw = from_picamera2(_unpacked_buffer(_mosaic(10, width=8), 10, 32), _config("SRGGB10", 8, 6, 32), sensor="IMX477")
     assert raw.black_level == (64.0,) * 4  # 256 at 12 bits scales to 64 at 10
-    with pytest.warns(PicamcalWarning, match="black level taken as 0"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PicamcalWarning)  # nothing to warn about: unknown is said where it matters
         raw = from_picamera2(buffer, config)
-    assert (raw.sensor, raw.black_level, raw.metadata["black_level_source"]) == (None, (0.0,) * 4, "none")
+    assert raw.sensor is None and raw.metadata["black_level_source"] == "none"
+    assert all(np.isnan(raw.black_level))
+    with pytest.raises(RawFormatError, match=r"no black level.*--black-level N, a dark frame \(--black FILE\)"):
+        require_black_level(raw)
+
+
+def test_new_registry_sensors_give_their_black_level():
+    # imx296.json 3840 on the 16-bit scale is 60 at 10 bits; imx283.json 3200 is 200 at 12 bits.
+    raw = from_picamera2(
+        _unpacked_buffer(_mosaic(10, width=8), 10, 32), {**_config("SBGGR10", 8, 6, 32), "model": "imx296"}
+    )
+    assert (raw.sensor, raw.black_level) == ("imx296", (60.0,) * 4)
+    raw = from_picamera2(_unpacked_buffer(_mosaic(12, width=8), 12, 32), _config("SRGGB12", 8, 6, 32), sensor="imx283")
+    assert (raw.sensor, raw.black_level) == ("imx283", (200.0,) * 4)
+
+
+def test_a_monochrome_sensor_or_format_is_refused():
+    buffer = _unpacked_buffer(_mosaic(10, width=8), 10, 32)
+    with pytest.raises(RawFormatError, match="OV9281 is a monochrome sensor"):
+        from_picamera2(buffer, {**_config("SBGGR10", 8, 6, 32), "model": "ov9281"})
+    with pytest.raises(RawFormatError, match="R10 is a monochrome"):
+        from_picamera2(buffer, _config("R10", 8, 6, 32))
+
+
+def test_to_picamera2_keeps_an_unknown_black_level_unknown():
+    from picamcal.raw import to_picamera2
+
+    raw = RawImage(_mosaic(10, height=6, width=8), "RGGB", float("nan"), 1023, 10)
+    array, config, metadata = to_picamera2(raw)
+    assert "SensorBlackLevels" not in metadata
+    assert all(np.isnan(from_picamera2(array, config, metadata).black_level))
 
 
 def test_sensor_name_comes_from_the_argument_or_the_model():
@@ -201,8 +232,8 @@ def test_sensor_name_comes_from_the_argument_or_the_model():
     assert from_picamera2(buffer, {**config, "model": "imx708_wide"}, meta).sensor == "imx708"
     assert from_picamera2(buffer, {**config, "model": "imx708_wide"}, meta, sensor="imx219").sensor == "imx219"
     with pytest.warns(PicamcalWarning, match="not in picamcal's registry"):
-        raw = from_picamera2(buffer, config, meta, sensor="imx296")
-    assert (raw.sensor, raw.metadata["model"]) == (None, "imx296")
+        raw = from_picamera2(buffer, config, meta, sensor="imx298")
+    assert (raw.sensor, raw.metadata["model"]) == (None, "imx298")
 
 
 def test_exposure_metadata_is_kept_in_picamcal_units():
@@ -456,7 +487,8 @@ def _one_line(excinfo, where: str) -> str:
         ({**_config("SBGGR10_CSI2P", 64, 8, 96), "framesize": 700}, "framesize of 700 bytes"),
         (_config("YUV420", 64, 8, 96), "unknown raw format 'YUV420'"),
         (_config("SBGGR8_CSI2P", 64, 8, 96), "unknown raw format 'SBGGR8_CSI2P'"),
-        (_config("MONO_PISP_COMP1", 64, 8, 96), "unknown raw format"),
+        (_config("MONO_PISP_COMP1", 64, 8, 96), "MONO_PISP_COMP1 is a monochrome (greyscale) format"),
+        (_config("SBGGR10P", 64, 8, 96), "did you mean SBGGR10_CSI2P?"),
         (_config("SBGGR10_CSI2P", 63, 8, 96), "even width and height"),
         ({"format": "SBGGR10_CSI2P", "size": "64x8"}, "'size' must be (width, height)"),
         ({"raw": None}, "'raw' stream is missing"),

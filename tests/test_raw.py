@@ -124,3 +124,35 @@ def test_dng_active_area_gives_the_visible_mosaic_and_its_pattern(tmp_path):
     np.testing.assert_array_equal(raw.bayer, visible[:h, :w])  # LibRaw's visible area, cropped to whole 2x2 blocks
     assert raw.pattern == "".join(desc[c] for c in colours.ravel())
     assert raw.pattern != "RGGB" and raw.bayer.shape[0] % 2 == 0 and raw.sensor == "imx219"
+
+
+def test_a_file_that_is_no_format_may_be_a_headless_dump(tmp_path):
+    frame = 4128 * 2464  # one IMX219 full frame of packed RAW10 at libcamera's 32-byte row alignment (Pi 4)
+    (tmp_path / "video").write_bytes(bytes(3 * frame))
+    with pytest.raises(RawFormatError, match=r"fits IMX219 3280x2464 10-bit packed frames.*--raw-format S<order>10"):
+        read_raw(tmp_path / "video")
+    (tmp_path / "odd.raw").write_bytes(b"\x01" * 1001)
+    with pytest.raises(RawFormatError, match=r"a headless dump \(rpicam-raw\)\? give --raw-format NAME and --size"):
+        read_raw(tmp_path / "odd.raw")
+    (tmp_path / "odd.txt").write_bytes(b"\x01" * 1001)
+    with pytest.raises(RawFormatError) as info:
+        read_raw(tmp_path / "odd.txt")
+    assert "headless" not in str(info.value)  # no hint without a reason for one
+
+
+def test_headless_options_without_a_raw_format_are_refused(tmp_path):
+    path = write_npz(tmp_path / "x.npz", _random_raw("RGGB"))
+    with pytest.raises(RawFormatError, match="describes a headless dump: give its raw format too"):
+        read_raw(path, size=(64, 48))
+
+
+def test_sensor_names_the_sensor_of_a_file_that_does_not(tmp_path):
+    raw = RawImage(_random_raw("RGGB").bayer, "RGGB", float("nan"), 1023, 10)  # no sensor, no black level
+    path = write_npz(tmp_path / "anon.npz", raw)
+    known = read_raw(path, sensor="IMX519")  # imx519.json: 4096 on the 16-bit scale, 64 at 10 bits
+    assert (known.sensor, known.black_level, known.metadata["sensor_known"]) == ("imx519", (64.0,) * 4, True)
+    unknown = read_raw(path, sensor="imx298")
+    assert (unknown.sensor, unknown.metadata["sensor_known"]) == ("imx298", False)
+    assert all(np.isnan(unknown.black_level))
+    named = read_raw(write_npz(tmp_path / "named.npz", _random_raw("RGGB")), sensor="imx477")
+    assert named.sensor == "imx219" and named.black_level == (64.0, 65.0, 66.0, 67.0)  # the file's own wins

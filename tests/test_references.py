@@ -15,6 +15,7 @@ from picamcal.references import find_references, role_of
         ("Run2_RED.dng", "red"),
         ("img_r0_g255_b0.dng", "green"),
         ("img_r0_g0_b255.npz", "blue"),
+        ("white_2.raw", "white"),
         ("img_r255_g255_b255.dng", "white"),
         ("img_r0_g0_b0.dng", "black"),
         ("img_r255_g255_b0.dng", None),
@@ -39,11 +40,30 @@ def test_find_references(tmp_path):
     }
 
 
-def test_missing_and_ambiguous_references(tmp_path):
+def test_white_alone_is_a_flat_field_and_colours_come_all_or_none(tmp_path):
     (tmp_path / "white.dng").write_bytes(b"x")
-    with pytest.raises(CalibrationInputError, match="no red, green, blue reference found"):
+    (tmp_path / "black.dng").write_bytes(b"x")
+    assert {k: v.name for k, v in find_references(tmp_path).items()} == {"white": "white.dng", "black": "black.dng"}
+    (tmp_path / "red.dng").write_bytes(b"x")
+    (tmp_path / "green.dng").write_bytes(b"x")
+    with pytest.raises(CalibrationInputError, match="no blue reference found: give red, green and blue references"):
         find_references(tmp_path)
-    for name in ("red.dng", "green.dng", "blue.dng", "white_2.dng"):
+    # In situ the colours come from the jig: the folder's are not looked for, a partial set included.
+    assert set(find_references(tmp_path, in_situ=True)) == {"white", "black"}
+
+
+def test_several_frames_of_a_role_are_a_list_in_natural_order(tmp_path):
+    for name in ("white_10.dng", "white_2.dng", "white_1.raw", "black.dng", "notes.txt", "white_3.txt"):
         (tmp_path / name).write_bytes(b"x")
-    with pytest.raises(CalibrationInputError, match="several files for the white reference"):
+    (tmp_path / "white_4.dng").mkdir()  # a folder is not a frame, whatever its name
+    found = find_references(tmp_path)
+    assert [p.name for p in found["white"]] == ["white_1.raw", "white_2.dng", "white_10.dng"]
+    assert found["black"].name == "black.dng"
+
+
+def test_a_folder_without_a_white(tmp_path):
+    (tmp_path / "red.dng").write_bytes(b"x")
+    with pytest.raises(CalibrationInputError, match="no white reference found"):
         find_references(tmp_path)
+    with pytest.raises(CalibrationInputError, match="no such folder"):
+        find_references(tmp_path / "missing")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from picamcal import PicamcalWarning, RawFormatError, read_raw
-from picamcal.raw import check_metadata, override, write_dng
+from picamcal.raw import RawImage, check_metadata, override, write_dng
 from picamcal.simulate import make_camera, simulate_references, simulate_target
 
 
@@ -55,3 +55,18 @@ def test_read_raw_warns_and_overrides(tmp_path, scenes):
     assert fixed4.black_level == (60.0, 61.0, 62.0, 63.0)
     with pytest.raises(RawFormatError, match="unknown Bayer pattern"):
         read_raw(path, pattern="RGBG")
+
+
+def test_the_black_level_check_uses_the_registry_for_any_known_sensor():
+    # An IMX283 (imx283.json: 3200 on the 16-bit scale, 200 DN at 12 bits) whose file declares black level 0.
+    rng = np.random.default_rng(4)
+    bayer = (200 + rng.integers(0, 40, (64, 64))).astype(np.uint16)
+    problems = check_metadata(RawImage(bayer, "RGGB", 0, 4095, 12, "imx283"))
+    assert len(problems) == 1 and "IMX283's is 200 DN at 12 bits" in problems[0] and "--black-level 200" in problems[0]
+
+
+def test_an_unknown_black_level_is_not_checked_and_the_pattern_still_is(scenes):
+    unknown = RawImage(scenes["white"].bayer, "BGGR", float("nan"), 1023, 10, "imx219")
+    assert check_metadata(unknown) == []  # NaN is require_black_level's to report, where it is needed
+    problems = check_metadata(override(unknown, pattern="GBRG"))
+    assert len(problems) == 1 and "greens sit on the other diagonal" in problems[0]

@@ -1,8 +1,9 @@
 """Correct many images at once: a process pool on this machine, or an existing dask.distributed cluster.
 
 One function, :func:`run_batch`, takes files, folders or glob patterns (:func:`expand_inputs`) and
-writes one float32 linear RGB TIFF per image (as ``picamcal correct`` always did), or one chunked
-OME-Zarr stack. The same per-file function runs in a local process pool or on a dask cluster, so the
+writes one image per input in one of :data:`picamcal.output.OUTPUT_FORMATS` (float32 linear RGB TIFF by
+default, as ``picamcal correct`` always did; uint16 linear TIFF; colour-managed sRGB PNG or JPEG), or one
+chunked float32 OME-Zarr stack. The same per-file function runs in a local process pool or on a dask cluster, so the
 outputs are the same bytes either way.
 
 What it guarantees:
@@ -10,7 +11,7 @@ What it guarantees:
 - **Bounded memory.** At most two tasks per worker are in flight; inputs are read by the workers, one at
   a time, never all up front; a task returns a few words, not its image.
 - **Calibration loaded once per worker** (a module-level cache keyed by the file's path and SHA-256).
-- **No half-written output.** Every TIFF is written to a temporary name and renamed; zarr chunks likewise
+- **No half-written output.** Every file is written to a temporary name and renamed; zarr chunks likewise
   (zarr's local store writes each chunk to a temporary name). Temporaries left by a killed batch are
   removed by the next run.
 - **Resumable.** Existing outputs are skipped unless ``overwrite``; the zarr stack records its finished
@@ -51,13 +52,24 @@ from ._files import sha256_file
 from .calibration import MODES, Calibration, load_calibration
 from .correct import correct, correct_processed
 from .errors import OutputError, PicamcalError, PicamcalWarning, RawFormatError
-from .output import write_rgb_tiff
+from .output import (
+    OUTPUT_FORMATS,
+    OUTPUT_SUFFIXES,
+    SRGB_FORMATS,
+    TIFF_FORMATS,
+    ColourMatrix,
+    camera_to_srgb,
+    output_bytes,
+    write_corrected,
+)
 from .raw import PATTERNS, read_raw
 from .raw.npz import is_raw_npz
 from .raw.processed import ProcessedImage, linearise, read_processed
 
 #: Suffixes of the files taken from a folder of raw images (DNG, legacy JPEG+raw, picamera2 .npy, picamcal .npz).
 RAW_SUFFIXES = (".dng", ".jpg", ".jpeg", ".npy", ".npz")
+#: Suffixes of the files taken from a folder of headless raw dumps (``raw_format`` given: rpicam-raw's frames).
+HEADLESS_SUFFIXES = (".raw", ".bin")
 #: Suffixes of the files taken from a folder of processed images (``processed=True``).
 PROCESSED_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 #: Output compressions: ``zstd`` (TIFF: with the floating-point predictor; needs imagecodecs).
@@ -66,8 +78,8 @@ COMPRESSIONS = ("zstd",)
 OME_NGFF_VERSION = "0.5"
 
 _GLOB_CHARS = re.compile(r"[*?[]")
-#: Temporary names of picamcal._atomic.atomic_path: ".<stem>.<8 random characters>.tmp<suffix>".
-_ATOMIC_TEMPORARY = re.compile(r"^\.(?P<stem>.+)\.[a-z0-9_]{8}\.tmp\.tiff$")
+#: Temporary names of picamcal._atomic.atomic_path: ".<stem>.<8 random characters>.tmp<suffix>", every output suffix.
+_ATOMIC_TEMPORARY = re.compile(r"^\.(?P<stem>.+)\.[a-z0-9_]{8}\.tmp\.(tiff|png|jpg)$")
 _PROBE_PREFIX = ".picamcal-probe."
 #: errno values that mean the output place itself is unusable: every further file would fail the same way.
 _PLACE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
@@ -229,7 +241,7 @@ def run_batch(
     progress: Callable[[int, int], None] | None = None,
     scheduler_timeout: float = 10.0,
 ) -> BatchResult:
-    """Correct many images in parallel; write ``out_dir/<stem>.tiff`` for each, or one zarr stack.
+    """Correct many images in parallel; write ``out_dir/<stem>.tiff`` (``.png``, ``.jpg``) for each, or one zarr stack.
 
     Everything about the batch as a whole is checked before any work: the options, the calibration, the
     inputs, that the calibration fits the first image, the scheduler, and that the output place can be
@@ -245,8 +257,8 @@ def run_batch(
         Files, folders or glob patterns (:func:`expand_inputs`; folders give :data:`RAW_SUFFIXES` files,
         or :data:`PROCESSED_SUFFIXES` ones with ``processed``).
     out_dir : path-like, optional
-        Folder for ``<stem>.tiff`` files (float32 linear RGB, metadata as :func:`picamcal.output.write_rgb_tiff`).
-        Give either this or ``zarr_path``.
+        Folder for ``<stem><suffix>`` files in ``output_format`` (:func:`picamcal.output.write_corrected`, the
+        suffix from :data:`picamcal.output.OUTPUT_SUFFIXES`). Give either this or ``zarr_path``.
     mode : {"centre", "flat", "pure", "balance"}
         Correction mode (:func:`picamcal.correct`).
     binned : bool
@@ -261,7 +273,8 @@ def run_batch(
         Replace existing outputs; otherwise they are skipped, which is how an interrupted batch resumes.
         When every output exists already there is nothing to do and that is an ``OutputError``.
     compression : {None, "zstd"}
-        Compress TIFF files (zstd with the floating-point predictor; needs imagecodecs) or zarr chunks.
+        Compress TIFF files (zstd with a predictor; needs imagecodecs) or zarr chunks; not the PNG and JPEG
+        formats, which have their own.
     zarr_path : path-like, optional
         Write one OME-Zarr stack here instead of TIFF files (see the module docstring).
     mosaic : (columns, rows), optional
@@ -280,11 +293,15 @@ def run_batch(
         Read headless raw dumps (``rpicam-raw``): their libcamera format name, (width, height), row stride in
         bytes, frame number and sensor (:func:`picamcal.read_raw`'s ``raw_format``, ``size``, ...).
     output_format : str
-        One of :data:`picamcal.output.OUTPUT_FORMATS` (default ``float32-tiff``).
+        One of :data:`picamcal.output.OUTPUT_FORMATS` (default ``float32-tiff``); a zarr stack is float32 only.
+        The sRGB formats of raw inputs use the colour matrix of :func:`picamcal.output.camera_to_srgb` (the
+        ``tuning`` file's, else the image's own, else the identity; the identity in ``pure`` mode, whose
+        output is the calibration's primaries); processed inputs are in the ISP's sRGB space already.
     white : path-like, optional
         With ``processed``: a processed white reference (residual flat field).
     tuning : path-like, optional
-        With ``processed``: the libcamera tuning file the camera ran with (its lens shading and CCM).
+        With ``processed``: the libcamera tuning file the camera ran with (its lens shading and CCM). With raw
+        inputs and an sRGB ``output_format``: the source of the colour matrix (its ``rpi.ccm``).
     progress : callable, optional
         Called as ``progress(finished, total)`` when the work starts and after each file, ``total``
         counting the files to do (not the skipped ones).
@@ -314,16 +331,38 @@ def run_batch(
         raise ValueError("give either out_dir (TIFF files) or zarr_path (one stack)")
     if processed and binned:
         raise ValueError("binned is for raw images")
-    if not processed and (white is not None or tuning is not None or input_encoding is not None):
-        raise ValueError("white, tuning and input_encoding go with processed")
+    if not processed and (white is not None or input_encoding is not None):
+        raise ValueError("white and input_encoding go with processed")
     if workers is not None and workers < 0:
         raise ValueError("workers must be 0 or more")
     if compression is not None and compression not in COMPRESSIONS:
         raise PicamcalError(f"unknown compression {compression!r} (expected one of {', '.join(COMPRESSIONS)})")
+    if output_format not in OUTPUT_FORMATS:
+        raise PicamcalError(f"unknown output format {output_format!r} (expected one of {', '.join(OUTPUT_FORMATS)})")
+    if zarr_path is not None and output_format != "float32-tiff":
+        raise PicamcalError(f"a zarr stack holds float32 only: write {output_format} files to a folder (--out)")
+    if compression is not None and zarr_path is None and output_format not in TIFF_FORMATS:
+        raise PicamcalError(f"compression {compression} is for the TIFF formats: {output_format} has its own")
+    if tuning is not None and not processed:
+        if output_format not in SRGB_FORMATS:
+            raise PicamcalError(
+                f"with raw images a tuning file gives the colour matrix of the sRGB formats; {output_format} "
+                f"stays in camera RGB (choose one of {', '.join(SRGB_FORMATS)}, or leave out the tuning file)",
+                tuning,
+            )
+        if mode == "pure":
+            raise PicamcalError(
+                "mode pure writes the calibration's primaries, to which a camera's colour matrix does not apply "
+                "(leave out the tuning file, or use mode centre)",
+                tuning,
+            )
+        from .export.tuning import load_tuning
+
+        camera_to_srgb({}, load_tuning(tuning), tuning_path=tuning)  # no rpi.ccm: fail here, before any work
     if pattern is not None and pattern not in PATTERNS:
         raise PicamcalError(f"unknown Bayer pattern {pattern!r} (expected one of {', '.join(PATTERNS)})")
     if input_encoding is None:
-        input_encoding = f"tuning:{tuning}" if tuning is not None else "srgb"
+        input_encoding = f"tuning:{tuning}" if tuning is not None and processed else "srgb"
     decode = input_encoding
     if input_encoding.startswith("tuning:"):  # absolute, for workers with another working folder
         decode = f"tuning:{Path(input_encoding.removeprefix('tuning:')).absolute()}"
@@ -334,6 +373,7 @@ def run_batch(
         raise ValueError("mosaic needs zarr_path and at least one column and one row")
 
     cal = load_calibration(calibration_path)
+    cal.check_mode(mode)  # a flat-field calibration has no centre or pure mode: say so before any work
     if processed:
         _check_processed_references(white, tuning, decode)
     settings = _Settings(
@@ -363,11 +403,13 @@ def run_batch(
     )
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
-    sources = expand_inputs(inputs, PROCESSED_SUFFIXES if processed else RAW_SUFFIXES)
+    sources = expand_inputs(
+        inputs, PROCESSED_SUFFIXES if processed else HEADLESS_SUFFIXES if raw_format is not None else RAW_SUFFIXES
+    )
     if mosaic is not None and len(sources) > mosaic[0] * mosaic[1]:
         raise PicamcalError(f"{len(sources)} frames do not fit a mosaic of {mosaic[0]} x {mosaic[1]} tiles")
     if zarr_path is None:
-        jobs, skipped = _plan_tiffs(sources, Path(out_dir), overwrite)
+        jobs, skipped = _plan_tiffs(sources, Path(out_dir), overwrite, OUTPUT_SUFFIXES[output_format])
         stack = None
     else:
         stack = _ZarrStack(Path(zarr_path), sources, settings)
@@ -382,7 +424,7 @@ def run_batch(
         if stack is not None:
             stack.prepare(frame_shape, cal.bin_size if binned else 1, compression)
         else:
-            _prepare_folder(place, jobs, _frame_bytes(frame_shape))
+            _prepare_folder(place, jobs, _frame_bytes(frame_shape, output_format))
         if client is not None:
             runner: _InProcess | _Pool | _Dask = _Dask(settings, client)
         elif workers == 0 or (workers is None and len(jobs) == 1):  # a pool for one file is only overhead
@@ -423,13 +465,16 @@ def _check_processed_references(white: Any, tuning: Any, decode: str) -> None:
         load_tuning(tuning)
 
 
-def _plan_tiffs(sources: list[Path], out_dir: Path, overwrite: bool) -> tuple[list[_Job], list[Path]]:
-    """One job per input whose TIFF is still to write; refuse name clashes and outputs that would replace an input."""
+def _plan_tiffs(
+    sources: list[Path], out_dir: Path, overwrite: bool, suffix: str = ".tiff"
+) -> tuple[list[_Job], list[Path]]:
+    """One job per input whose file (``<stem><suffix>``) is still to write; refuse name clashes and outputs that
+    would replace an input."""
     inputs = {source.resolve() for source in sources}
     writers: dict[str, Path] = {}
     jobs, skipped = [], []
     for index, source in enumerate(sources):
-        target = out_dir / f"{source.stem}.tiff"
+        target = out_dir / f"{source.stem}{suffix}"
         if target.name in writers:
             raise OutputError(f"two inputs would both write {target.name}; correct them separately", source)
         writers[target.name] = source
@@ -464,8 +509,8 @@ def _preflight(cal: Calibration, sources: list[Path], jobs: list[_Job], settings
     return (*cal.white.shape[:2], 3) if settings.binned else (cal.height, cal.width, 3)
 
 
-def _frame_bytes(shape: Sequence[int]) -> int:
-    return int(np.prod(shape)) * 4
+def _frame_bytes(shape: Sequence[int], output_format: str = "float32-tiff") -> int:
+    return output_bytes(output_format, tuple(shape))
 
 
 def _prepare_folder(out_dir: Path, jobs: list[_Job], frame_bytes: int) -> None:
@@ -882,7 +927,7 @@ def _process(settings: _Settings, job: _Job) -> _Outcome:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            _write(settings, job, _correct_file(settings, Path(job.source)))
+            _write(settings, job, *_correct_file(settings, Path(job.source)))
             error = None
         except PicamcalError as exc:
             error = exc.problem if exc.path == job.source else str(exc)
@@ -895,12 +940,13 @@ def _process(settings: _Settings, job: _Job) -> _Outcome:
     return _Outcome(job.index, error, place_error, messages)
 
 
-def _correct_file(settings: _Settings, source: Path) -> np.ndarray:
+def _correct_file(settings: _Settings, source: Path) -> tuple[np.ndarray, dict[str, Any]]:
+    """The corrected image, and the metadata its colour matrix comes from (the raw's; none for processed)."""
     cal = _calibration(settings)
     if settings.processed:
-        return _correct_processed(read_processed(source, settings.decode), cal, settings)
+        return _correct_processed(read_processed(source, settings.decode), cal, settings), {}
     raw = read_raw(source, **settings.read_options)
-    return correct(raw, cal, mode=settings.mode, binned=settings.binned)
+    return correct(raw, cal, mode=settings.mode, binned=settings.binned), raw.metadata
 
 
 def _correct_processed(image: ProcessedImage, cal: Calibration, settings: _Settings) -> np.ndarray:
@@ -921,7 +967,7 @@ def _correct_processed(image: ProcessedImage, cal: Calibration, settings: _Setti
     return correct_processed(image, cal, settings.mode, white=white, ccm=tuning_ccm(tuning, ct), isp_gains=gains)
 
 
-def _write(settings: _Settings, job: _Job, rgb: np.ndarray) -> None:
+def _write(settings: _Settings, job: _Job, rgb: np.ndarray, source_metadata: dict[str, Any]) -> None:
     if settings.zarr_array is not None:
         _write_frame(settings.zarr_array, job, rgb, settings.mosaic)
         return
@@ -933,7 +979,30 @@ def _write(settings: _Settings, job: _Job, rgb: np.ndarray) -> None:
     }
     if settings.processed:
         info["input_encoding"] = settings.input_encoding
-    write_rgb_tiff(job.target, rgb, info, overwrite=settings.overwrite, compression=settings.compression)
+    write_corrected(
+        job.target,
+        rgb,
+        settings.output_format,
+        info,
+        colour_matrix=_colour_matrix(settings, source_metadata) if settings.output_format in SRGB_FORMATS else None,
+        overwrite=settings.overwrite,
+        compression=settings.compression,
+    )
+
+
+def _colour_matrix(settings: _Settings, source_metadata: dict[str, Any]) -> ColourMatrix:
+    """The sRGB formats' colour matrix: none for processed images (already in the ISP's sRGB space) and for
+    ``pure`` mode (the calibration's primaries, not the camera's), else :func:`picamcal.output.camera_to_srgb`."""
+    if settings.processed:
+        return ColourMatrix(np.eye(3), "none: a processed image is in the ISP's output (sRGB) space already")
+    if settings.mode == "pure":
+        return ColourMatrix(np.eye(3), "none: mode pure writes the calibration's primaries, taken as sRGB's")
+    if settings.tuning is None:
+        return camera_to_srgb(source_metadata)
+    from .export.tuning import load_tuning
+
+    tuning = _cached(("tuning", settings.tuning), lambda: load_tuning(settings.tuning))
+    return camera_to_srgb(source_metadata, tuning, tuning_path=settings.tuning)
 
 
 def _write_frame(array_path: str, job: _Job, rgb: np.ndarray, mosaic: tuple[int, int] | None = None) -> None:

@@ -7,12 +7,18 @@ blue primaries, each divided by the white, are the columns of the crosstalk matr
 its inverse unmixes to pure primaries, ``inv(M(b)) = Cx U(b)``, and normalising to the centre of the
 sensor gives the unmixing field ``U(b) = M_centre inv(M(b))`` (paper, eq. for ``Unmixed``), which is
 the identity at the centre. Matrices act on column vectors: ``out = U @ rgb``.
+
+From a white alone (no colour references) only ``W``, ``LST`` and ``Cb`` are measured: a ``flat``
+calibration (:attr:`picamcal.calibration.Calibration.kind`). Each role may have several frames of the
+same scene; their bin means are averaged, and their temporal noise is measured and recorded.
 """
 
 from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterable
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -23,8 +29,9 @@ from ._files import sha256_file
 from ._version import __version__
 from .bayer import bin_sites, sites_to_channels
 from .calibration import Calibration
-from .errors import CalibrationInputError, PicamcalWarning
+from .errors import CalibrationFileError, CalibrationInputError, PicamcalWarning
 from .raw import RawImage, read_raw
+from .raw.model import require_black_level
 
 REFERENCE_ROLES = ("white", "red", "green", "blue", "black")
 #: Fraction of clipped white pixels above which the white is refused.
@@ -35,6 +42,8 @@ MIN_WHITE_FRACTION = 0.05
 MAX_CONDITION = 100.0
 
 RawLike = RawImage | str | os.PathLike
+#: A reference role: one frame, or several frames of the same scene (a sequence or any iterable) to average.
+Frames = RawLike | Iterable[RawLike]
 
 
 # Index pairs (p, q, r, s) of the flattened 3x3 matrix whose products a_p a_q - a_r a_s give each element
@@ -128,20 +137,40 @@ def crosstalk_matrices(site_responses: np.ndarray, pattern: str) -> np.ndarray:
     return m * amounts[..., None, :]
 
 
-def _load(role: str, ref: RawLike) -> tuple[RawImage, dict]:
-    raw = ref if isinstance(ref, RawImage) else read_raw(ref)
-    info: dict = {"role": role, "format": raw.metadata.get("format", "array")}
-    info["clipped_fraction"] = float(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
+@dataclass
+class _Reference:
+    """One reference role after loading: its first frame, its bin means averaged over its frames, its record."""
+
+    role: str
+    raw: RawImage  # the first frame: geometry, levels and the name in messages
+    sites: np.ndarray  # per-site bin means averaged over the frames, before black subtraction (nby, nbx, 4)
+    info: dict  # its entry in meta["inputs"]
+
+
+def _frames(ref: Frames) -> Iterable[RawLike]:
+    return [ref] if isinstance(ref, (RawImage, str, os.PathLike)) else ref
+
+
+def _frame_record(raw: RawImage, fallback: str) -> dict:
+    """Name and checksum of the file a frame was read from, or ``fallback`` as its name (an array in memory)."""
     path = raw.metadata.get("path")
     if path and Path(path).is_file():
-        info.update(name=Path(path).name, sha256=sha256_file(Path(path)))
-    else:
-        info["name"] = f"<{role} array>"
-    return raw, info
+        return {"name": Path(path).name, "sha256": sha256_file(Path(path))}
+    return {"name": fallback}
 
 
-def _check_white(white: RawImage, black_sites: np.ndarray) -> None:
-    clipped = np.count_nonzero(white.bayer >= white.white_level)
+def _check_like(raw: RawImage, template: RawImage, what: str) -> None:
+    if raw.bayer.shape != template.bayer.shape:
+        raise CalibrationInputError(
+            f"size {raw.width}x{raw.height} differs from the {what}'s {template.width}x{template.height}", raw.source
+        )
+    if raw.pattern != template.pattern:
+        raise CalibrationInputError(
+            f"Bayer pattern {raw.pattern} differs from the {what}'s {template.pattern}", raw.source
+        )
+
+
+def _check_clipping(white: RawImage, clipped: int) -> None:
     if clipped > MAX_CLIPPED_FRACTION * white.bayer.size:
         ys, xs = np.nonzero(white.bayer >= white.white_level)
         raise CalibrationInputError(
@@ -149,16 +178,72 @@ def _check_white(white: RawImage, black_sites: np.ndarray) -> None:
             f"level {white.white_level}, around x={int(np.median(xs))}, y={int(np.median(ys))}; reduce the exposure",
             white.source,
         )
-    signal = np.median(white.bayer[::4, ::4]) - float(np.median(black_sites))
-    usable = white.white_level - float(np.median(black_sites))
-    if signal <= 0:
-        raise CalibrationInputError("white reference is not brighter than black", white.source)
-    if signal < MIN_WHITE_FRACTION * usable:
-        raise CalibrationInputError(
-            f"white reference is too dark: median signal {signal:.1f} DN is {100 * signal / usable:.1f} % of the range "
-            f"(at least {100 * MIN_WHITE_FRACTION:.0f} % needed); increase the exposure or the light",
-            white.source,
+
+
+def _load_reference(role: str, ref: Frames, bin_size: int, white: RawImage | None) -> _Reference:
+    """Read the frames of one role, check each (size and Bayer order against ``white``, clipping), average their bins.
+
+    Several frames are averaged bin by bin (binning is linear, so this is the binned mean frame). Their
+    temporal noise is measured from the frames' departures from their mean, pixel by pixel: the RMS over the
+    frame of each pixel's sample standard deviation is one frame's noise, and the mean of N frames has
+    ``1 / sqrt(N)`` of it. Only the first frame, a running sum of the bins and two float32 planes of sums
+    (of each frame minus the first, and its square) are held, whatever the number of frames.
+    """
+    first: RawImage | None = None
+    total = sums = squares = None
+    records: list[dict] = []
+    for index, item in enumerate(_frames(ref)):
+        raw = item if isinstance(item, RawImage) else read_raw(item)
+        if first is None:
+            if bin_size > min(raw.width, raw.height):
+                raise CalibrationInputError(f"bin size {bin_size} is larger than the image", raw.source)
+            if white is not None:
+                _check_like(raw, white, "white reference")
+            first = raw
+        else:
+            _check_like(raw, first, f"first {role} frame")
+            if not np.array_equal(raw.black_level, first.black_level, equal_nan=True):
+                raise CalibrationInputError(
+                    f"black level {list(raw.black_level)} differs from the first {role} frame's "
+                    f"{list(first.black_level)}: frames of one reference must come from the same settings",
+                    raw.source,
+                )
+        clipped = int(np.count_nonzero(raw.bayer >= raw.white_level))
+        if role == "white":
+            _check_clipping(raw, clipped)
+        sites = bin_sites(raw.bayer, bin_size)
+        total = sites if total is None else total + sites
+        if raw is not first:
+            difference = raw.bayer.astype(np.float32) - first.bayer
+            if sums is None:
+                sums, squares = difference, difference * difference
+            else:
+                sums += difference
+                squares += difference * difference
+        record = _frame_record(raw, f"<{role} array {index + 1}>")
+        record.update(format=raw.metadata.get("format", "array"), clipped_fraction=clipped / raw.bayer.size)
+        records.append(record)
+    if first is None:
+        raise CalibrationInputError(f"no frames given for the {role} reference")
+    count = len(records)
+    info: dict = {"role": role, "format": records[0]["format"]}
+    if count == 1:
+        info.update(records[0])
+        if "sha256" not in info:
+            info["name"] = f"<{role} array>"
+    else:
+        # Each pixel's variance across the frames: (sum d^2 - (sum d)^2 / N) / (N - 1), d = frame - first frame.
+        variance = (squares - sums * sums / count) / (count - 1)
+        noise = float(np.sqrt(np.mean(variance, dtype=np.float64)))
+        info.update(
+            name=", ".join(r["name"] for r in records),
+            clipped_fraction=max(r["clipped_fraction"] for r in records),
+            frames=records,
+            frame_count=count,
+            temporal_noise_dn=round(noise, 4),
+            averaged_noise_dn=round(noise / float(np.sqrt(count)), 4),
         )
+    return _Reference(role, first, total / count, info)
 
 
 def _fill_ill_conditioned(fields: list[np.ndarray], bad: np.ndarray) -> None:
@@ -169,24 +254,34 @@ def _fill_ill_conditioned(fields: list[np.ndarray], bad: np.ndarray) -> None:
 
 
 def calibrate(
-    white: RawLike,
-    red: RawLike,
-    green: RawLike,
-    blue: RawLike,
-    black: RawLike | None = None,
+    white: Frames,
+    red: Frames | None = None,
+    green: Frames | None = None,
+    blue: Frames | None = None,
+    black: Frames | None = None,
     *,
     bin_size: int = 16,
     smoothing: float = 0.0,
 ) -> Calibration:
-    """Measure the flat field and colour-unmixing field from reference images.
+    """Measure the flat field and, with colour references, the colour-unmixing field.
+
+    With red, green and blue references the calibration is ``full`` (every correction mode); with the
+    white alone (and optionally a dark frame) it is a ``flat`` calibration: the flat field and colour
+    balance, for modes ``balance`` and ``flat``, the lens shading exports and the report.
 
     Parameters
     ----------
-    white, red, green, blue : RawImage or path
-        Raw images of the bare sensor under uniform white, red, green and blue illumination, taken
-        with the same frozen exposure, gains and white balance.
-    black : RawImage or path, optional
-        A dark frame at the same settings; subtracted bin by bin. Without it each file's black level is used.
+    white : RawImage or path, or a sequence of them
+        Raw image of the bare sensor (or of the optics: a bright-field microscope with the sample removed, a
+        diffuser in front of the lens) under uniform white light. Several frames of one role are checked
+        one by one and averaged; their temporal noise is recorded in ``meta["inputs"]``.
+    red, green, blue : RawImage or path, or a sequence of them, optional
+        The same under uniform red, green and blue light: all three, or none for a flat calibration. Take
+        every reference with the same frozen exposure, gains and white balance.
+    black : RawImage or path, or a sequence of them, optional
+        A dark frame at the same settings; subtracted bin by bin, and its per-site median becomes the
+        calibration's black level (``meta["black_level_source"] == "dark frame"``), so references and
+        images whose black level is unknown (NaN) can be used. Without it each file's black level is used.
     bin_size : int
         Bin edge in sensor pixels (even); the paper uses 16.
     smoothing : float
@@ -201,7 +296,9 @@ def calibrate(
     ------
     CalibrationInputError
         References of different size or pattern, a saturated or too-dark white, black brighter than
-        white, or too many bins whose colour response cannot be inverted.
+        white, only some of the colour references, or too many bins whose colour response cannot be inverted.
+    RawFormatError
+        A reference whose black level is unknown, without a dark frame.
 
     Warns
     -----
@@ -214,20 +311,31 @@ def calibrate(
     >>> import picamcal
     >>> cal = picamcal.calibrate("white.dng", "red.dng", "green.dng", "blue.dng", "black.dng")  # doctest: +SKIP
     >>> cal.unmixing[77, 102].round(3)  # the identity at the centre  # doctest: +SKIP
+    >>> flat = picamcal.calibrate(["white_1.dng", "white_2.dng"], black="black.dng")  # doctest: +SKIP
+    >>> flat.kind, flat.modes  # doctest: +SKIP
+    ('flat', ('balance', 'flat'))
     """
     if bin_size < 2 or bin_size % 2:
         raise CalibrationInputError(f"bin size must be an even number of pixels >= 2, got {bin_size}")
-    named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
-    raws, infos = _load_consistent({role: ref for role, ref in named.items() if ref is not None})
-    site_responses = _binned_responses(raws, infos, black is not None, bin_size, smoothing)
-    arrays = _derive(site_responses, raws[0].pattern, raws[1].source)
-    return Calibration(arrays, _meta(raws, infos, bin_size, smoothing, black is not None, arrays))
+    colours = {"red": red, "green": green, "blue": blue}
+    missing = [role for role, ref in colours.items() if ref is None]
+    if 0 < len(missing) < 3:
+        raise CalibrationInputError(
+            f"no {' or '.join(missing)} reference: give red, green and blue references together, or none of them "
+            "for a flat-field calibration (white only)"
+        )
+    named = {"white": white, **colours, "black": black}
+    refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, bin_size)
+    site_responses, black_level = _binned_responses(refs, black is not None, smoothing)
+    arrays = _derive(site_responses, refs[0].raw.pattern, refs[1].raw.source if len(site_responses) > 1 else "")
+    infos = [r.info for r in refs]
+    return Calibration(arrays, _meta(refs, infos, bin_size, smoothing, black_level, arrays))
 
 
 def calibrate_in_situ(
-    white: RawLike,
+    white: Frames,
     unmixing_from: Calibration | str | os.PathLike,
-    black: RawLike | None = None,
+    black: Frames | None = None,
     *,
     smoothing: float = 0.0,
 ) -> Calibration:
@@ -241,11 +349,12 @@ def calibrate_in_situ(
 
     Parameters
     ----------
-    white : RawImage or path
-        The in-situ white reference, from the same sensor, size and Bayer order as the jig calibration.
+    white : RawImage or path, or a sequence of them
+        The in-situ white reference (several frames are averaged), from the same sensor, size and Bayer
+        order as the jig calibration.
     unmixing_from : Calibration or path
-        A full calibration from the jig (:func:`calibrate`).
-    black : RawImage or path, optional
+        A full calibration from the jig (:func:`calibrate` with colour references).
+    black : RawImage or path, or a sequence of them, optional
         A dark frame at the in-situ white's settings.
     smoothing : float
         Gaussian smoothing of the new white, in bins.
@@ -258,9 +367,15 @@ def calibrate_in_situ(
     from .calibration import load_calibration
 
     jig = unmixing_from if isinstance(unmixing_from, Calibration) else load_calibration(unmixing_from)
+    if not jig.has_unmixing:
+        raise CalibrationFileError(
+            "a flat-field calibration (white only) has no colour unmixing to take: give a calibration made with "
+            "red, green and blue references",
+            jig.path,
+        )
     named = {"white": white, "black": black}
-    raws, infos = _load_consistent({role: ref for role, ref in named.items() if ref is not None})
-    first = raws[0]
+    refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, jig.bin_size)
+    first = refs[0].raw
     if (first.width, first.height) != (jig.width, jig.height):
         problem = f"size {first.width}x{first.height}, the jig calibration is for {jig.width}x{jig.height}"
     elif first.pattern != jig.pattern:
@@ -271,7 +386,8 @@ def calibrate_in_situ(
         problem = ""
     if problem:
         raise CalibrationInputError(f"the white does not fit the jig calibration: {problem}", first.source)
-    new_white = _binned_responses(raws, infos, black is not None, jig.bin_size, smoothing)[0]
+    responses, black_level = _binned_responses(refs, black is not None, smoothing)
+    new_white = responses[0]
     jig_responses = jig.site_responses.astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         colours = jig_responses[1:] / jig_responses[0] * new_white
@@ -280,73 +396,93 @@ def calibrate_in_situ(
     info = {"role": "unmixing", "format": "picamcal-calibration", "created": jig.meta.get("created")}
     if not isinstance(unmixing_from, Calibration):
         info.update(name=Path(unmixing_from).name, sha256=sha256_file(Path(unmixing_from)))
-    meta = _meta(raws, [*infos, info], jig.bin_size, smoothing, black is not None, arrays)
+    meta = _meta(refs, [*(r.info for r in refs), info], jig.bin_size, smoothing, black_level, arrays)
     meta["in_situ"] = {"unmixing_from": info, "jig_inputs": [i.get("name") for i in jig.meta.get("inputs", [])]}
     return Calibration(arrays, meta)
 
 
-def _load_consistent(named: dict[str, RawLike]) -> tuple[list[RawImage], list[dict]]:
-    """Read the references (white first) and check they share size and Bayer order."""
-    loaded = [_load(role, ref) for role, ref in named.items()]
-    raws = [raw for raw, _ in loaded]
-    first = raws[0]
-    for raw in raws[1:]:
-        if raw.bayer.shape != first.bayer.shape:
-            raise CalibrationInputError(
-                f"size {raw.width}x{raw.height} differs from the white reference's {first.width}x{first.height}",
-                raw.source,
-            )
-        if raw.pattern != first.pattern:
-            raise CalibrationInputError(
-                f"Bayer pattern {raw.pattern} differs from the white reference's {first.pattern}", raw.source
-            )
-    return raws, [info for _, info in loaded]
+def _load_all(named: dict[str, Frames], bin_size: int) -> list[_Reference]:
+    """Read the references (white first; the black, when given, last), each checked against the white."""
+    refs: list[_Reference] = []
+    for role, ref in named.items():
+        refs.append(_load_reference(role, ref, bin_size, refs[0].raw if refs else None))
+    return refs
 
 
 def _binned_responses(
-    raws: list[RawImage], infos: list[dict], has_black: bool, bin_size: int, smoothing: float
-) -> np.ndarray:
+    refs: list[_Reference], has_black: bool, smoothing: float
+) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """Black-subtracted per-site bin means of every reference but the black, white first (n, nby, nbx, 4).
 
-    Also records each reference's exposure (median and 99.9th percentile of its bin means, as fractions
-    of the range from black to the white level) in its ``infos`` entry.
+    The black is the dark frame's bins when there is one (then the references' own black levels may be
+    unknown, NaN), else each reference's black level, which must be known. Returns the responses and the
+    calibration's black level: the dark frame's per-site median over the bins, or the white's black level.
+
+    Also records each reference's exposure (median and 99.9th percentile of its bin means above black, as
+    fractions of the range from black to the white level) in its ``info``.
     """
-    first = raws[0]
-    if bin_size > min(first.width, first.height):
-        raise CalibrationInputError(f"bin size {bin_size} is larger than the image", first.source)
-    binned = [bin_sites(raw.bayer, bin_size) for raw in raws]
-    for raw, sites, info in zip(raws, binned, infos, strict=True):
-        # How well exposed each reference is, from its bin means (the diagnostics judge under-exposure by these).
-        black = float(np.median(raw.black_level))
-        fraction = (sites - black) / (raw.white_level - black)
-        info["median_fraction"] = round(float(np.median(fraction)), 5)
-        info["p99_fraction"] = round(float(np.percentile(fraction, 99.9)), 5)
+    white = refs[0].raw
+    lights = refs[:-1] if has_black else refs
     if has_black:
-        black_sites = binned.pop()
-        black_raw = raws[-1]
-        if np.median(black_sites) >= np.median(binned[0]):
+        dark = refs[-1]
+        if np.median(dark.sites) >= np.median(refs[0].sites):
             raise CalibrationInputError(
-                f"black frame (median {np.median(black_raw.bayer):.0f} DN) is not darker than the white reference "
-                f"(median {np.median(first.bayer):.0f} DN): were the files swapped?",
-                black_raw.source,
+                f"black frame (median {np.median(dark.sites):.0f} DN) is not darker than the white reference "
+                f"(median {np.median(refs[0].sites):.0f} DN): were the files swapped?",
+                dark.raw.source,
             )
+        black_sites = [dark.sites] * len(lights)
+        black_level = tuple(float(v) for v in np.median(dark.sites.reshape(-1, 4), axis=0))
     else:
-        black_sites = np.stack([np.broadcast_to(np.asarray(r.black_level), binned[0].shape) for r in raws])
-    _check_white(first, black_sites[0] if not has_black else black_sites)
-    site_responses = np.stack(binned) - black_sites
+        for ref in lights:
+            require_black_level(ref.raw)
+        black_sites = [np.broadcast_to(np.asarray(ref.raw.black_level), ref.sites.shape) for ref in lights]
+        black_level = white.black_level
+    black = float(np.median(black_level))
+    usable = white.white_level - black
+    for ref, below in zip(lights, black_sites, strict=True):
+        # How well exposed each reference is, from its bin means (the diagnostics judge under-exposure by these).
+        fraction = (ref.sites - below) / (ref.raw.white_level - black)
+        ref.info["median_fraction"] = round(float(np.median(fraction)), 5)
+        ref.info["p99_fraction"] = round(float(np.percentile(fraction, 99.9)), 5)
+    signal = float(np.median(refs[0].sites - black_sites[0]))
+    if signal <= 0:
+        raise CalibrationInputError("white reference is not brighter than black", white.source)
+    if signal < MIN_WHITE_FRACTION * usable:
+        raise CalibrationInputError(
+            f"white reference is too dark: median signal {signal:.1f} DN is {100 * signal / usable:.1f} % of the range "
+            f"(at least {100 * MIN_WHITE_FRACTION:.0f} % needed); increase the exposure or the light",
+            white.source,
+        )
+    site_responses = np.stack([ref.sites - below for ref, below in zip(lights, black_sites, strict=True)])
     if smoothing > 0:
         site_responses = ndimage.gaussian_filter(site_responses, sigma=(0, smoothing, smoothing, 0), mode="nearest")
     if np.any(site_responses[0] <= 0):
         raise CalibrationInputError(
             f"white reference has {np.count_nonzero((site_responses[0] <= 0).any(-1))} bins with no signal above black",
-            first.source,
+            white.source,
         )
-    return site_responses
+    return site_responses, black_level
+
+
+def _flat_field(site_white: np.ndarray, pattern: str) -> dict[str, np.ndarray]:
+    """The flat-field arrays of either kind: ``W`` per site and channel, ``LST`` and ``Cb`` (paper, Cb LST = 1 / W)."""
+    channel_white = sites_to_channels(site_white, pattern)
+    peak = channel_white.reshape(-1, 3).max(axis=0)
+    return {
+        "site_white": site_white.astype(np.float32),
+        "white": channel_white.astype(np.float32),
+        "lens_shading": (peak / channel_white).astype(np.float32),
+        "colour_balance": (1.0 / peak).astype(np.float64),
+    }
 
 
 def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dict[str, np.ndarray]:
-    """Every field of the calibration from the binned responses of the white, red, green and blue references."""
-    site_white = site_responses[0]
+    """Every field of the calibration from the binned responses: of the white alone (a flat calibration), or of
+    the white, red, green and blue references (a full one)."""
+    arrays = {"site_responses": site_responses.astype(np.float32), **_flat_field(site_responses[0], pattern)}
+    if len(site_responses) == 1:
+        return arrays
     # float32 is what the calibration stores, and inverting in it is several times faster.
     m = crosstalk_matrices(site_responses, pattern).astype(np.float32)
     pure, _ = invert_3x3(m)
@@ -371,45 +507,51 @@ def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dic
         _fill_ill_conditioned([m, pure], bad)
         condition = np.where(bad, np.nan, condition)
         _fill_ill_conditioned([condition], bad)
-    nby, nbx = site_white.shape[:2]
+    nby, nbx = site_responses.shape[1:3]
     y0, y1, x0, x1 = centre_region(nby, nbx)
     m_centre = m[y0:y1, x0:x1].reshape(-1, 3, 3).mean(axis=0)
     cx, _ = invert_3x3(m_centre)
-    channel_white = sites_to_channels(site_white, pattern)
-    peak = channel_white.reshape(-1, 3).max(axis=0)
     return {
-        "site_responses": site_responses.astype(np.float32),
-        "site_white": site_white.astype(np.float32),
-        "white": channel_white.astype(np.float32),
-        "lens_shading": (peak / channel_white).astype(np.float32),
+        **arrays,
         "crosstalk": m.astype(np.float32),
         "unmixing": (m_centre @ pure).astype(np.float32),
         "pure_unmixing": pure.astype(np.float32),
         "condition_number": condition.astype(np.float32),
         "ill_conditioned": bad,
-        "colour_balance": (1.0 / peak).astype(np.float64),
         "centre_response": m_centre.astype(np.float64),
         "colour_response_inverse": cx.astype(np.float64),
     }
 
 
-def _meta(raws: list[RawImage], infos: list[dict], bin_size: int, smoothing: float, black: bool, arrays: dict) -> dict:
-    first = raws[0]
+def _meta(
+    refs: list[_Reference],
+    infos: list[dict],
+    bin_size: int,
+    smoothing: float,
+    black_level: tuple[float, float, float, float],
+    arrays: dict,
+) -> dict:
+    first = refs[0].raw
     nby, nbx = arrays["white"].shape[:2]
-    return {
+    has_black = refs[-1].role == "black"
+    meta = {
+        "kind": "full" if "unmixing" in arrays else "flat",
         "software_version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "sensor": next((r.sensor for r in raws if r.sensor), None),
+        "sensor": next((r.raw.sensor for r in refs if r.raw.sensor), None),
         "pattern": first.pattern,
         "width": first.width,
         "height": first.height,
         "bin_size": bin_size,
-        "black_level": list(first.black_level),
-        "black_frame": black,
+        "black_level": [round(float(v), 4) for v in black_level],
+        "black_level_source": "dark frame" if has_black else "references",
+        "black_frame": has_black,
         "white_level": first.white_level,
         "bit_depth": first.bit_depth,
         "smoothing": smoothing,
         "centre_region": list(centre_region(nby, nbx)),
-        "ill_conditioned_bins": int(np.count_nonzero(arrays["ill_conditioned"])),
         "inputs": infos,
     }
+    if "ill_conditioned" in arrays:
+        meta["ill_conditioned_bins"] = int(np.count_nonzero(arrays["ill_conditioned"]))
+    return meta

@@ -1,14 +1,23 @@
 """The Calibration value: every field the correction needs, saved and loaded as one ``.npz``.
 
-File schema (version 1): a NumPy ``.npz`` (read with ``allow_pickle=False``) with the arrays listed
-in :data:`ARRAYS` and ``metadata``, a 0-d unicode array holding a JSON record::
+File schema (version 1): a NumPy ``.npz`` (read with ``allow_pickle=False``) with the arrays of its
+kind and ``metadata``, a 0-d unicode array holding a JSON record::
 
-    {"schema": "picamcal-calibration", "schema_version": 1, "software_version": "0.1.0",
+    {"schema": "picamcal-calibration", "schema_version": 1, "kind": "full", "software_version": "0.1.0",
      "created": "2026-11-21T10:00:00+00:00", "sensor": "imx219", "pattern": "BGGR",
      "width": 3280, "height": 2464, "bin_size": 16, "black_level": [64, 64, 64, 64],
-     "white_level": 1023, "bit_depth": 10, "smoothing": 0.0, "centre_region": [51, 103, 68, 137],
-     "ill_conditioned_bins": 0,
+     "black_level_source": "references", "white_level": 1023, "bit_depth": 10, "smoothing": 0.0,
+     "centre_region": [51, 103, 68, 137], "ill_conditioned_bins": 0,
      "inputs": [{"role": "white", "name": "white.dng", "sha256": "...", "format": "dng"}, ...]}
+
+Two kinds (``"kind"``; a file without the key is ``"full"``, as every file before flat ones existed):
+
+``full``
+    From white, red, green and blue references: the flat field and the colour-unmixing field, every
+    array of :data:`ARRAYS` and :data:`GLOBAL_ARRAYS`; all correction modes.
+``flat``
+    From a white reference alone: the flat field and colour balance only (:data:`FLAT_ARRAYS`, with
+    ``site_responses`` holding the white alone); modes ``balance`` and ``flat``.
 
 Shapes use ``nby x nbx`` bins of ``bin_size`` sensor pixels (the last row and column may be partial).
 """
@@ -32,6 +41,10 @@ from .raw.model import RawImage
 SCHEMA = "picamcal-calibration"
 SCHEMA_VERSION = 1
 MODES = ("balance", "flat", "centre", "pure")
+#: The modes that apply the colour-unmixing field, which only a ``full`` calibration has.
+UNMIXING_MODES = ("centre", "pure")
+#: Values of ``meta["kind"]``: a calibration with colour unmixing, and a flat field from a white alone.
+KINDS = ("full", "flat")
 
 #: Array name -> (trailing shape after (nby, nbx), meaning).
 ARRAYS: dict[str, tuple[tuple[int, ...], str]] = {
@@ -50,6 +63,8 @@ GLOBAL_ARRAYS = {
     "centre_response": ((3, 3), "M_centre: mean of M over the central ninth of the frame"),
     "colour_response_inverse": ((3, 3), "Cx = inv(M_centre)"),
 }
+#: The arrays of a ``flat`` calibration (``site_responses`` has one reference, the white).
+FLAT_ARRAYS = ("site_responses", "site_white", "white", "lens_shading", "colour_balance")
 
 
 @dataclass
@@ -58,6 +73,14 @@ class Calibration:
 
     Build one with :func:`picamcal.calibrate`; save it with :meth:`save` and read it with
     :func:`load_calibration`. Arrays are described in :data:`ARRAYS`; ``meta`` is the JSON record.
+    A ``flat`` calibration (from a white alone, :attr:`kind`) holds only :data:`FLAT_ARRAYS`.
+
+    Attributes
+    ----------
+    arrays : dict of str to ndarray
+    meta : dict
+    path : Path or None
+        The file it was loaded from (:func:`load_calibration`), for messages; not saved.
 
     Examples
     --------
@@ -69,12 +92,59 @@ class Calibration:
 
     arrays: dict[str, np.ndarray]
     meta: dict[str, Any] = field(default_factory=dict)
+    path: Path | None = field(default=None, compare=False)
 
     def __getattr__(self, name: str) -> Any:
         arrays = self.__dict__.get("arrays", {})
         if name in arrays:
             return arrays[name]
+        if name in ARRAYS or name in GLOBAL_ARRAYS:
+            raise AttributeError(f"a {self.kind} calibration has no {name!r} (it has no colour unmixing)")
         raise AttributeError(name)
+
+    # Kind ---------------------------------------------------------------------------------------
+    @property
+    def kind(self) -> str:
+        """``"full"`` (flat field and colour unmixing) or ``"flat"`` (flat field from a white alone)."""
+        return str(self.meta.get("kind", "full"))
+
+    @property
+    def has_unmixing(self) -> bool:
+        """True if the calibration has a colour-unmixing field (modes ``centre`` and ``pure``)."""
+        return self.kind == "full"
+
+    @property
+    def modes(self) -> tuple[str, ...]:
+        """The correction modes this calibration can do, in the order of :data:`MODES`."""
+        return MODES if self.has_unmixing else tuple(m for m in MODES if m not in UNMIXING_MODES)
+
+    def require_unmixing(self, purpose: str) -> None:
+        """Raise CalibrationFileError, one line naming the file and the fix, if there is no unmixing for ``purpose``.
+
+        Examples
+        --------
+        >>> flat_cal.require_unmixing("mode centre")  # doctest: +SKIP
+        Traceback (most recent call last):
+        picamcal.errors.CalibrationFileError: cal.npz: a flat-field calibration (white only) has no colour ...
+        """
+        if self.has_unmixing:
+            return
+        record = next((i for i in self.meta.get("inputs", []) if i.get("role") == "white"), {})
+        names = [str(f.get("name", "")) for f in record.get("frames", [record])]
+        white = " ".join(names) if all(n and not n.startswith("<") and " " not in n for n in names) else "WHITE"
+        raise CalibrationFileError(
+            f"a flat-field calibration (white only) has no colour unmixing for {purpose}: calibrate with red, "
+            "green and blue references too, or combine this white with a jig calibration: "
+            f"picamcal calibrate --white {white} --unmixing-from JIG.npz",
+            self.path,
+        )
+
+    def check_mode(self, mode: str) -> None:
+        """Raise ValueError for an unknown mode, CalibrationFileError for an unmixing mode without unmixing."""
+        if mode not in MODES:
+            raise ValueError(f"unknown mode {mode!r}: choose one of {', '.join(MODES)}")
+        if mode in UNMIXING_MODES:
+            self.require_unmixing(f"mode {mode}")
 
     # Geometry -----------------------------------------------------------------------------------
     @property
@@ -120,10 +190,12 @@ class Calibration:
 
     # Derived figures ----------------------------------------------------------------------------
     def matrices(self, mode: str) -> np.ndarray | None:
-        """The per-bin 3x3 matrix field a correction mode applies after the flat field (None for none)."""
-        if mode not in MODES:
-            raise ValueError(f"unknown mode {mode!r}: choose one of {', '.join(MODES)}")
-        return {"centre": self.unmixing, "pure": self.pure_unmixing}.get(mode)
+        """The per-bin 3x3 matrix field a correction mode applies after the flat field (None for none).
+
+        Raises CalibrationFileError for ``centre`` and ``pure`` on a flat calibration (:meth:`check_mode`).
+        """
+        self.check_mode(mode)
+        return {"centre": self.arrays.get("unmixing"), "pure": self.arrays.get("pure_unmixing")}.get(mode)
 
     def noise_penalty(
         self, mode: str = "centre", channel_noise: tuple[float, float, float] = (1.0, 1.0, 1.0)
@@ -190,29 +262,74 @@ class Calibration:
         return path
 
 
+#: First bytes of the files people give by mistake where a calibration belongs -> what they are.
+_IMAGE_SIGNATURES = {
+    b"II*\x00": "an image",  # TIFF, little-endian (a DNG is a raw image: see _not_a_calibration)
+    b"MM\x00*": "an image",  # TIFF, big-endian
+    b"\x93NUMPY": "a raw image",  # a .npy array (picamera2's raw dumps)
+    b"\xff\xd8": "an image",  # JPEG (with or without the legacy firmware's raw block)
+    b"\x89PNG\r\n\x1a\n": "an image",
+}
+_ZIP = b"PK\x03\x04"
+
+
+def _not_a_calibration(path: Path) -> None:
+    """Raise the one-line error for a file that is plainly not a calibration, from its first bytes."""
+    from .raw.npz import is_raw_npz
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError as exc:
+        raise CalibrationFileError(f"cannot read the calibration file ({exc.strerror or exc})", path) from None
+    what = next((kind for magic, kind in _IMAGE_SIGNATURES.items() if head.startswith(magic)), None)
+    if what is not None and head[:2] in (b"II", b"MM") and path.suffix.lower() == ".dng":
+        what = "a raw image"
+    elif what is None and head.startswith(_ZIP) and is_raw_npz(path):
+        what = "a raw image"
+    elif what is None and not head.startswith(_ZIP) and path.suffix.lower() == ".raw":
+        what = "a raw image"  # a headless dump has no signature, only its name
+    if what is not None:
+        raise CalibrationFileError(
+            f"this is {what}, not a calibration (the calibration comes first: picamcal correct CALIBRATION IMAGE...)",
+            path,
+        )
+    if not head.startswith(_ZIP):
+        raise CalibrationFileError("not a picamcal calibration file (not an .npz archive)", path)
+
+
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
-    """Read a calibration written by :meth:`Calibration.save`, checking its schema and array shapes.
+    """Read a calibration written by :meth:`Calibration.save`, checking its schema, kind and array shapes.
 
     Raises
     ------
     CalibrationFileError
-        Missing, corrupt, of another schema or version, or with inconsistent arrays.
+        Missing, corrupt, an image given in its place, of another schema or version, or with inconsistent
+        arrays.
 
     Examples
     --------
     >>> cal = picamcal.load_calibration("cal.npz")  # doctest: +SKIP
-    >>> cal.sensor, cal.bin_size  # doctest: +SKIP
-    ('imx219', 16)
+    >>> cal.sensor, cal.bin_size, cal.kind  # doctest: +SKIP
+    ('imx219', 16, 'full')
     """
     path = Path(path)
     if not path.is_file():
         raise CalibrationFileError("no such calibration file", path)
+    _not_a_calibration(path)
     try:
         with np.load(path, allow_pickle=False) as data:
+            if "metadata" not in data.files:
+                raise CalibrationFileError("not a picamcal calibration file (an .npz without its record)", path)
             contents = {name: np.array(data[name]) for name in data.files}
-        record = json.loads(str(contents.pop("metadata")))
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
         raise CalibrationFileError(f"not a readable picamcal calibration ({type(exc).__name__}: {exc})", path) from exc
+    except ValueError:  # numpy's advice about allow_pickle does not apply: a calibration holds no objects
+        raise CalibrationFileError("not a picamcal calibration file (it holds Python objects)", path) from None
+    try:
+        record = json.loads(str(contents.pop("metadata")))
+    except ValueError:
+        raise CalibrationFileError("not a picamcal calibration file (its record is not JSON)", path) from None
     if not isinstance(record, dict) or record.get("schema") != SCHEMA:
         raise CalibrationFileError("not a picamcal calibration file", path)
     if record.get("schema_version") != SCHEMA_VERSION:
@@ -224,7 +341,15 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     record.pop("schema")
     record.pop("schema_version")
     _validate(contents, record, path)
-    return Calibration(contents, record)
+    return Calibration(contents, record, path)
+
+
+def _expected_shapes(kind: str, nby: int, nbx: int) -> dict[str, tuple[int, ...]]:
+    """Array name -> shape of a calibration of ``kind`` with ``nby x nbx`` bins."""
+    expected = {name: (nby, nbx, *shape) for name, (shape, _) in ARRAYS.items()}
+    expected.update({name: shape for name, (shape, _) in GLOBAL_ARRAYS.items()})
+    expected["site_responses"] = (4 if kind == "full" else 1, nby, nbx, 4)
+    return expected if kind == "full" else {name: expected[name] for name in FLAT_ARRAYS}
 
 
 def _validate(arrays: dict[str, np.ndarray], meta: dict[str, Any], path: Path) -> None:
@@ -235,9 +360,10 @@ def _validate(arrays: dict[str, np.ndarray], meta: dict[str, Any], path: Path) -
         meta["centre_region"]
     except (KeyError, TypeError, ValueError) as exc:
         raise CalibrationFileError(f"calibration record lacks {exc}", path) from None
-    expected = {name: (nby, nbx, *shape) for name, (shape, _) in ARRAYS.items()}
-    expected["site_responses"] = (4, nby, nbx, 4)
-    expected.update({name: shape for name, (shape, _) in GLOBAL_ARRAYS.items()})
+    kind = meta.get("kind", "full")
+    if kind not in KINDS:
+        raise CalibrationFileError(f"unknown calibration kind {kind!r} (expected {' or '.join(KINDS)})", path)
+    expected = _expected_shapes(kind, nby, nbx)
     for name, shape in expected.items():
         if name not in arrays:
             raise CalibrationFileError(f"calibration lacks the array {name!r}", path)
@@ -247,3 +373,6 @@ def _validate(arrays: dict[str, np.ndarray], meta: dict[str, Any], path: Path) -
             )
         if arrays[name].dtype != bool and not np.all(np.isfinite(arrays[name])):
             raise CalibrationFileError(f"calibration array {name!r} holds non-finite values", path)
+    extra = sorted(set(arrays) & (set(ARRAYS) | set(GLOBAL_ARRAYS)) - set(expected))
+    if extra:
+        raise CalibrationFileError(f"a {kind} calibration holds {', '.join(map(repr, extra))}: inconsistent", path)

@@ -6,6 +6,7 @@ line on stderr and exit status 2, here in :func:`main` and nowhere else.
 
 from __future__ import annotations
 
+import logging
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -155,16 +156,21 @@ def _same_file(a: Path, b: Path) -> bool:
 def calibrate_cmd(
     folder: Annotated[
         Path | None,
-        typer.Argument(help="Folder holding the white, red, green, blue and (optional) black references."),
+        typer.Argument(
+            help="Folder holding the white (white_1, white_2, ... to average), optional red, green and blue (all "
+            "three or none), and optional black references."
+        ),
     ] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Calibration file to write (.npz).")] = Path(
         "calibration.npz"
     ),
-    white: Annotated[Path | None, typer.Option(help="White reference raw file.")] = None,
-    red: Annotated[Path | None, typer.Option(help="Red reference raw file.")] = None,
-    green: Annotated[Path | None, typer.Option(help="Green reference raw file.")] = None,
-    blue: Annotated[Path | None, typer.Option(help="Blue reference raw file.")] = None,
-    black: Annotated[Path | None, typer.Option(help="Dark frame (optional).")] = None,
+    white: Annotated[
+        list[Path] | None, typer.Option(help="White reference raw file(s); several frames are averaged.")
+    ] = None,
+    red: Annotated[list[Path] | None, typer.Option(help="Red reference raw file(s).")] = None,
+    green: Annotated[list[Path] | None, typer.Option(help="Green reference raw file(s).")] = None,
+    blue: Annotated[list[Path] | None, typer.Option(help="Blue reference raw file(s).")] = None,
+    black: Annotated[list[Path] | None, typer.Option(help="Dark frame(s) (optional).")] = None,
     unmixing_from: Annotated[
         Path | None,
         typer.Option(help="In situ: take the unmixing from this jig calibration; only --white (and --black) needed."),
@@ -180,36 +186,67 @@ def calibrate_cmd(
     sensor: RawSensorOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
-    """Measure the flat field and colour-unmixing field from reference images (or in situ, with --unmixing-from)."""
+    """Measure the flat field, and with red, green and blue references the colour-unmixing field.
+
+    With a white alone (and optionally a dark frame) the calibration is a flat field: vignetting and colour
+    balance, for correct --mode balance|flat, export-tuning and export-lst. With --unmixing-from, a white
+    through your own optics takes the unmixing of a jig calibration. Prints the checks that need a look.
+    """
+    from .analysis.diagnostics import diagnose
     from .calibrate import calibrate, calibrate_in_situ
-    from .references import find_references
+    from .references import COLOURS, find_references
 
     named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
-    refs = find_references(folder, need_colours=unmixing_from is None) if folder is not None else {}
-    refs.update({role: path for role, path in named.items() if path is not None})
-    needed = ("white",) if unmixing_from is not None else ("white", "red", "green", "blue")
-    missing = [role for role in needed if role not in refs]
-    if missing:
-        raise typer.BadParameter(f"give a folder of references or --{' --'.join(missing)}")
+    refs: dict[str, Any] = find_references(folder, in_situ=unmixing_from is not None) if folder is not None else {}
+    refs.update({role: paths[0] if len(paths) == 1 else paths for role, paths in named.items() if paths})
+    colours = [role for role in COLOURS if role in refs]
+    if "white" not in refs:
+        raise typer.BadParameter("give a folder of references or --white")
+    if unmixing_from is not None and colours:
+        raise typer.BadParameter("--unmixing-from takes the colours from the jig calibration: drop --" + colours[0])
+    if 0 < len(colours) < 3:
+        missing = " and ".join(f"--{role}" for role in COLOURS if role not in refs)
+        raise typer.BadParameter(f"give {missing} too, or no colour references for a flat field (white only)")
     if out.exists() and not overwrite:
         raise OutputError("exists already (use --overwrite to replace it)", out)
-    inputs = [*refs.values(), *([unmixing_from] if unmixing_from else [])]
-    if any(_same_file(out, p) for p in inputs):
+    paths = [p for ref in refs.values() for p in (ref if isinstance(ref, list) else [ref])]
+    if any(_same_file(out, p) for p in [*paths, *([unmixing_from] if unmixing_from else [])]):
         raise OutputError("is one of the input files; choose another --out", out)
     read = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
+
+    def frames(role: str) -> Any:  # several frames are read one at a time, as the calibration averages them
+        ref = refs[role]
+        return (read(path) for path in ref) if isinstance(ref, list) else read(ref)
+
     with console.status("calibrating"):
         if unmixing_from is not None:
-            black_raw = read(refs["black"]) if "black" in refs else None
-            cal = calibrate_in_situ(read(refs["white"]), unmixing_from, black_raw, smoothing=smoothing)
+            black_frames = frames("black") if "black" in refs else None
+            cal = calibrate_in_situ(frames("white"), unmixing_from, black_frames, smoothing=smoothing)
         else:
-            cal = calibrate(**{role: read(path) for role, path in refs.items()}, bin_size=bin_size, smoothing=smoothing)
+            cal = calibrate(**{role: frames(role) for role in refs}, bin_size=bin_size, smoothing=smoothing)
         cal.save(out, overwrite=overwrite)
-    console.print(
-        f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
-        f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, "
+        checks = diagnose(cal)
+    what = (
         f"worst noise penalty (centre mode) {float(cal.noise_penalty('centre').max()):.2f}"
-        + (f", unmixing from {unmixing_from.name}" if unmixing_from else "")
+        if cal.has_unmixing
+        else "a flat field from the white alone (modes balance and flat, no colour unmixing), "
+        f"worst noise penalty (flat mode) {float(cal.noise_penalty('flat').max()):.2f}"
     )
+    lines = [
+        f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
+        f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, {what}"
+        + (f", unmixing from {unmixing_from.name}" if unmixing_from else "")
+    ]
+    for info in cal.meta["inputs"]:
+        if info.get("frame_count", 1) > 1:
+            lines.append(
+                f"{info['role']}: {info['frame_count']} frames averaged: temporal noise "
+                f"{info['temporal_noise_dn']:.2f} DN per pixel in one frame, {info['averaged_noise_dn']:.2f} DN in "
+                "their average"
+            )
+    lines += [f"needs a look: {check.name}: {check.summary}" for check in checks if check.verdict == "warn"]
+    for line in lines:
+        console.print(line, markup=False, soft_wrap=True)
 
 
 @app.command("correct")
@@ -218,7 +255,9 @@ def correct_cmd(
     inputs: Annotated[
         list[Path], typer.Argument(help="Images, folders of them, or glob patterns (quoted: for very many files).")
     ],
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder for <stem>.tiff files.")] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder for <stem>.tiff (.png, .jpg) files.")
+    ] = None,
     zarr_path: Annotated[
         Path | None, typer.Option("--zarr", help="Write one OME-Zarr stack (t, c, y, x) instead of TIFF files.")
     ] = None,
@@ -242,7 +281,8 @@ def correct_cmd(
         Path | None,
         typer.Option(
             "--tuning",
-            help="With --processed: the tuning file the camera ran with; its lens shading and CCM are accounted for.",
+            help="With --processed: the tuning file the camera ran with; its lens shading and CCM are accounted for. "
+            "With raw images and an srgb-* --output-format: its rpi.ccm is the colour matrix to sRGB.",
         ),
     ] = None,
     white_image: Annotated[
@@ -273,10 +313,12 @@ def correct_cmd(
         bool, typer.Option(help="Replace existing outputs (without it they are skipped: an interrupted batch resumes).")
     ] = False,
 ) -> None:
-    """Correct raw (or, with --processed, ISP-processed) images in parallel; write float32 linear RGB TIFF files.
+    """Correct raw (or, with --processed, ISP-processed) images in parallel; write one image file per input.
 
-    Existing outputs are skipped, so running the same command again resumes an interrupted batch. A file
-    that fails is reported at the end and does not stop the others (exit status 1).
+    float32 linear RGB TIFF by default; uint16 linear TIFF for Fiji/ImageJ; sRGB PNG (8 or 16 bit) or
+    JPEG, colour-managed, to look at (docs/outputs.md). Existing outputs are skipped, so running the same
+    command again resumes an interrupted batch. A file that fails is reported at the end and does not stop
+    the others (exit status 1).
     """
     import time
 
@@ -284,15 +326,21 @@ def correct_cmd(
 
     from .batch import run_batch
     from .calibration import MODES
-    from .output import OUTPUT_FORMATS
+    from .output import OUTPUT_FORMATS, SRGB_FORMATS
 
     mode = _choice(mode, MODES, "--mode")
-    if (white_image is not None or tuning_file is not None or input_encoding is not None) and not processed:
-        raise typer.BadParameter("--white, --tuning and --input-encoding go with --processed")
+    output_format = _choice(output_format, OUTPUT_FORMATS, "--output-format")
+    if (white_image is not None or input_encoding is not None) and not processed:
+        raise typer.BadParameter("--white and --input-encoding go with --processed")
+    if tuning_file is not None and not processed and output_format not in SRGB_FORMATS:
+        raise typer.BadParameter(
+            "without --processed it gives the colour matrix of --output-format " + ", ".join(SRGB_FORMATS),
+            param_hint="--tuning",
+        )
     if processed and binned:
         raise typer.BadParameter("--binned is for raw images")
     if (out is None) == (zarr_path is None):
-        raise typer.BadParameter("give --out FOLDER for TIFF files, or --zarr STACK.zarr for one stack")
+        raise typer.BadParameter("give --out FOLDER for image files, or --zarr STACK.zarr for one stack")
     if workers is not None and (workers < 0 or scheduler is not None):
         raise typer.BadParameter("0 or more; not with --scheduler (the cluster has its own)", param_hint="--workers")
     progress = Progress(
@@ -329,7 +377,7 @@ def correct_cmd(
             compression=compression,
             processed=processed,
             input_encoding=input_encoding,
-            output_format=_choice(output_format, OUTPUT_FORMATS, "--output-format"),
+            output_format=output_format,
             **_batch_read_options(pattern, black_level, raw_format, size, stride, frame, sensor),
             white=white_image,
             tuning=tuning_file,
@@ -392,7 +440,9 @@ def _parse_size(size: str | None, option: str = "--size") -> tuple[int, int] | N
 @app.command("simulate")
 def simulate_cmd(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
-    sensor: Annotated[str, typer.Option(help="ov5647, imx219, imx477 or imx708.")] = "imx219",
+    sensor: Annotated[
+        str, typer.Option(help="Any colour sensor of the registry: imx219, imx477, ov5647, imx708, ...")
+    ] = "imx219",
     tilt: Annotated[tuple[float, float], typer.Option(help="Sensor tilt about x and y, degrees.")] = (0.0, 0.0),
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     pattern: Annotated[str | None, typer.Option(help="Bayer order (default: the sensor's).")] = None,
@@ -403,8 +453,9 @@ def simulate_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
 ) -> None:
     """Simulate a calibration run: five references, a colour-wheel target and the ground truth."""
-    from .simulate import simulate_run
+    from .simulate import RAW_WRITERS, simulate_run
 
+    fmt = _choice(fmt, list(RAW_WRITERS), "--format")
     with console.status(f"simulating {sensor}"):
         paths = simulate_run(
             out,
@@ -424,11 +475,17 @@ def simulate_cmd(
 @app.command("export-tuning")
 def export_tuning_cmd(
     calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Tuning file to write (.json).")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out", "-o", help="Folder for <sensor>_vc4.json and <sensor>_pisp.json, or a .json file for one target."
+        ),
+    ],
     base: Annotated[
-        Path | None, typer.Option(help="Tuning file to start from (default on a Pi: the sensor's stock file).")
+        Path | None,
+        typer.Option(help="Tuning file to start from (default: the sensor's stock file, for --target)."),
     ] = None,
-    target: Annotated[str, typer.Option(help="Without --base: vc4 (Pi 4 and earlier) or pisp (Pi 5).")] = "vc4",
+    target: Annotated[str, typer.Option(help="Without --base: vc4 (Pi 4 and earlier), pisp (Pi 5) or both.")] = "both",
     ct: Annotated[int, typer.Option(help="Colour temperature of the table entry, kelvin.")] = 4500,
     luminance_strength: Annotated[
         float, typer.Option(help="libcamera luminance_strength (1 = full correction).")
@@ -438,12 +495,17 @@ def export_tuning_cmd(
     sensor: Annotated[
         str | None, typer.Option(help="The sensor the base file is for (default: from its name).")
     ] = None,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace existing output files.")] = False,
 ) -> None:
-    """Write a libcamera tuning file with a static lens shading table (rpi.alsc) from the calibration."""
+    """Write libcamera tuning files with a static lens shading table (rpi.alsc) from the calibration.
+
+    Without --base, starts from the sensor's stock file: libcamera's own on a Raspberry Pi, else the copy
+    picamcal ships; --target both (the default) writes one for a Pi 4 (vc4) and one for a Pi 5 (pisp).
+    """
     from .calibration import load_calibration
     from .export.tuning import (
         TARGET_NAMES,
+        check_tuning,
         export_tuning,
         load_tuning,
         save_tuning,
@@ -452,28 +514,54 @@ def export_tuning_cmd(
     )
 
     cal = load_calibration(calibration)
-    if base is None:
+    if base is not None:
+        bases = [base]
+    else:
         if cal.sensor is None:
             raise typer.BadParameter("the calibration does not say its sensor: give --base")
-        if target not in TARGET_NAMES:
-            raise typer.BadParameter(f"{target!r} is not vc4 or pisp", param_hint="--target")
-        base = stock_tuning_path(cal.sensor, TARGET_NAMES[target])
-    if out.exists() and not overwrite:
-        raise OutputError("exists already (use --overwrite to replace it)", out)
-    if _same_file(out, base):
-        raise OutputError("would replace the base tuning file; choose another --out", out)
-    base_tuning = load_tuning(base)
-    tuning = export_tuning(
-        cal,
-        base_tuning,
-        ct=ct,
-        luminance_strength=luminance_strength,
-        ccm=ccm,
-        clip_gains=clip_gains,
-        base_sensor=sensor or sensor_of_tuning_file(base),
-    )
-    save_tuning(out, tuning, overwrite=overwrite)
-    console.print(f"wrote {out}: static lens shading for {tuning['target']} from {calibration.name} (base {base.name})")
+        names = list(TARGET_NAMES) if _choice(target, (*TARGET_NAMES, "both"), "--target") == "both" else [target]
+        bases = [stock_tuning_path(cal.sensor, TARGET_NAMES[name.lower()]) for name in names]
+    tunings = [load_tuning(path) for path in bases]
+    if len(bases) > 1 and out.suffix.lower() == ".json":
+        raise typer.BadParameter("two targets need a folder (or --target vc4 or pisp for one file)", param_hint="--out")
+    if out.suffix.lower() == ".json":
+        outputs = [out]
+    else:
+        label = {target: name for name, target in TARGET_NAMES.items()}
+        outputs = [
+            out / f"{cal.sensor or sensor_of_tuning_file(path)}_{label[check_tuning(tuning)]}.json"
+            for path, tuning in zip(bases, tunings, strict=True)
+        ]
+    for path, base_path in zip(outputs, bases, strict=True):
+        if path.exists() and not overwrite:
+            raise OutputError("exists already (use --overwrite to replace it)", path)
+        if _same_file(path, base_path) or _same_file(path, calibration):
+            raise OutputError("would replace an input file; choose another --out", path)
+    exported = [
+        export_tuning(
+            cal,
+            tuning,
+            ct=ct,
+            luminance_strength=luminance_strength,
+            ccm=ccm,
+            clip_gains=clip_gains,
+            base_sensor=sensor or sensor_of_tuning_file(base_path),
+        )
+        for tuning, base_path in zip(tunings, bases, strict=True)
+    ]  # all before writing any: a table the Pi 5 cannot apply leaves nothing half-done
+    if out.suffix.lower() != ".json":
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
+    for path, tuning, base_path in zip(outputs, exported, bases, strict=True):
+        save_tuning(path, tuning, overwrite=overwrite)
+        console.print(
+            f"wrote {path}: static lens shading for {tuning['target']} from {calibration.name} (base {base_path})",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
 
 
 @app.command("export-lst")
@@ -513,6 +601,7 @@ def apply_tuning_cmd(
     size: RawSizeOption = None,
     stride: StrideOption = None,
     frame: FrameOption = None,
+    raw_sensor: RawSensorOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
@@ -520,7 +609,8 @@ def apply_tuning_cmd(
     from .output import write_rgb_tiff
 
     tuning = _load_tuning(tuning_file)
-    raw = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame)(image)
+    headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
+    raw = _reader(pattern, black_level, **headless)(image)
     if _same_file(out, image):
         raise OutputError("would replace the input image; choose another --out", out)
     gains = _numbers(colour_gains, 2, "--colour-gains")
@@ -547,7 +637,7 @@ def _numbers(text: str | None, count: int, option: str) -> tuple[float, ...] | N
 
 @app.command("inspect")
 def inspect_cmd(
-    files: Annotated[list[Path], typer.Argument(help="Raw or processed image files.")],
+    files: Annotated[list[Path], typer.Argument(help="Files and folders (every file of a folder is listed).")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
@@ -557,33 +647,60 @@ def inspect_cmd(
     frame: FrameOption = None,
     sensor: RawSensorOption = None,
 ) -> None:
-    """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong."""
+    """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong.
+
+    Every file is listed, also those that are not images (sidecars, calibrations) and those that cannot be read
+    (with the reason); the exit status is 1 if any could not be read.
+    """
     import json
     import warnings
 
-    from .inspect import describe
+    from .inspect import files_of, survey
 
     read = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
     records = []
-    for path in files:
+    for path in files_of(files):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            record = describe(path, read)
+            record = survey(path, read)
         record["warnings"] = [
             str(w.message).removeprefix(f"{path}: ") for w in caught if issubclass(w.category, PicamcalWarning)
         ]
         records.append(record)
+    unreadable = [r for r in records if not r["readable"]]
     if as_json:
-        print(json.dumps(records, indent=2))
-        return
+        print(json.dumps(_json_safe(records), indent=2))
+    else:
+        _print_inspection(records)
+    if unreadable:
+        raise typer.Exit(1)
+
+
+def _json_safe(value: Any) -> Any:
+    """Plain JSON: an unknown black level (NaN) becomes null, as JSON has no NaN."""
+    if isinstance(value, float) and value != value:
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def _print_inspection(records: list[dict[str, Any]]) -> None:
     table = Table()
-    for heading in ("file", "format", "sensor", "size", "pattern", "bits", "black", "white", "exposure", "gain"):
+    headings = ["file", "format", "sensor", "size", "pattern", "bits", "black", "white", "exposure", "gain"]
+    frames = any("frames" in r for r in records)
+    for heading in [*headings, "frames"] if frames else headings:
         table.add_column(heading)
     for r in records:
-        table.add_row(
+        if "width" not in r:  # not an image: a sidecar, a calibration, or unreadable
+            table.add_row(Path(r["path"]).name, r["format"] if r["readable"] else "unreadable")
+            continue
+        row = [
             Path(r["path"]).name,
             r["format"],
-            r.get("sensor") or "?",
+            r.get("sensor") or ("?" if r["raw"] else "-"),
             f"{r['width']}x{r['height']}",
             r.get("pattern", "-"),
             str(r["bit_depth"]),
@@ -591,14 +708,18 @@ def inspect_cmd(
             str(r.get("white_level", "-")),
             f"{1e3 * r['exposure_time_s']:.3g} ms" if r.get("exposure_time_s") else "-",
             f"{r['analogue_gain']:.3g}" if r.get("analogue_gain") else "-",
-        )
+        ]
+        table.add_row(*row, *([str(r.get("frames", "-"))] if frames else []))
     stdout = _stdout()
     stdout.print(table)
     for r in records:
+        name = Path(r["path"]).name
+        if "error" in r:
+            stdout.print(f"{name}: cannot read: {r['error']}", markup=False, highlight=False, soft_wrap=True)
         if "note" in r:
-            stdout.print(f"{Path(r['path']).name}: not raw: {r['note']}", markup=False)
+            stdout.print(f"{name}: not raw: {r['note']}", markup=False, highlight=False, soft_wrap=True)
         for warning in r["warnings"]:
-            stdout.print(f"{Path(r['path']).name}: {warning}", style="yellow", markup=False)
+            stdout.print(f"{name}: {warning}", style="yellow", markup=False, highlight=False, soft_wrap=True)
 
 
 def _stdout() -> Console:
@@ -795,7 +916,9 @@ def demo_cmd(
     """Run the whole method on the simulated camera and print the figures before and after."""
     from .demo import STEPS, run_demo
     from .sensors import get_sensor
+    from .simulate import RAW_WRITERS
 
+    fmt = _choice(fmt, list(RAW_WRITERS), "--format")
     get_sensor(sensor)
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise OutputError("folder exists and is not empty (use --overwrite to write into it)", out)
@@ -880,6 +1003,8 @@ def main(argv: list[str] | None = None) -> None:
         from click import exceptions as click
 
     warnings.showwarning = _warn
+    # picamcal says what is wrong with a file in its own one line; tifffile would log its own view of it too.
+    logging.getLogger("tifffile").setLevel(logging.CRITICAL)
     args = _spread_role_options(list(sys.argv[1:] if argv is None else argv))
     try:
         code = app(args=args, prog_name="picamcal", standalone_mode=False)

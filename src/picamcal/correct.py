@@ -25,14 +25,16 @@ cubic spline through the bin centres, which the kernels evaluate in its local B-
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .bayer import bin_centres, bin_sites, sites_to_channels
-from .calibration import MODES, Calibration
+from .calibration import Calibration
 from .errors import PicamcalError
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from .kernels import CorrectionFields, correct_numba, correct_numpy, make_taps, numba_available, output_array
-from .raw.model import RawImage, site_channels
+from .raw.model import RawImage, require_black_level, site_channels
 from .raw.processed import ProcessedImage
 
 #: Rows per block when applying the matrix field, to bound memory (9 float32 planes per block).
@@ -171,6 +173,32 @@ def _cached_fields(calibration: Calibration, mode: str, height: int, width: int)
     return fields
 
 
+def with_known_black_level(raw: RawImage, calibration: Calibration) -> RawImage:
+    """``raw`` itself if its black level is known, else ``raw`` with the calibration's dark-frame black level.
+
+    A raw image whose black level is unknown (NaN: a headless dump of a sensor picamcal does not know) takes
+    the black level the calibration measured from its dark frame (``meta["black_level_source"]``); the image
+    must then be taken at the dark frame's settings. Without a dark-frame level it is an error (one line
+    naming the three ways to give a black level).
+
+    Raises
+    ------
+    RawFormatError
+        The black level is unknown and the calibration has none from a dark frame.
+
+    Examples
+    --------
+    >>> dump = picamcal.read_raw("dump.raw", raw_format="SBGGR10_CSI2P", size=(640, 480))  # doctest: +SKIP
+    >>> with_known_black_level(dump, cal).black_level  # doctest: +SKIP
+    (64.0, 64.0, 64.0, 64.0)
+    """
+    if np.all(np.isfinite(raw.black_level)):
+        return raw
+    if calibration.meta.get("black_level_source") != "dark frame":
+        require_black_level(raw)
+    return dataclasses.replace(raw, black_level=tuple(calibration.meta["black_level"]))
+
+
 def correct(
     raw: RawImage,
     calibration: Calibration,
@@ -185,11 +213,13 @@ def correct(
     Parameters
     ----------
     raw : RawImage
-        The image, from the same sensor, size and Bayer pattern as the calibration's references.
+        The image, from the same sensor, size and Bayer pattern as the calibration's references. An unknown
+        (NaN) black level takes the calibration's dark-frame level (:func:`with_known_black_level`).
     calibration : Calibration
         From :func:`picamcal.calibrate` or :func:`picamcal.load_calibration`.
     mode : {"centre", "flat", "pure", "balance"}
-        See the module docstring; ``centre`` is the paper's recommended correction.
+        See the module docstring; ``centre`` is the paper's recommended correction. A flat calibration
+        (white only) does ``balance`` and ``flat``; the others raise CalibrationFileError.
     binned : bool
         Return the bin-resolution image (one value per bin and channel, no demosaicing) instead of
         the full-resolution one.
@@ -213,12 +243,12 @@ def correct(
     >>> rgb = picamcal.correct(picamcal.read_raw("sample.dng"), cal, mode="centre")  # doctest: +SKIP
     >>> same = picamcal.correct(picamcal.read_raw("sample.dng"), cal, engine="numpy", out=rgb)  # doctest: +SKIP
     """
-    if mode not in MODES:
-        raise ValueError(f"unknown mode {mode!r}: choose one of {', '.join(MODES)}")
+    calibration.check_mode(mode)
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENGINES)}")
     calibration.check_compatible(raw)
     matrices = calibration.matrices(mode)
+    raw = with_known_black_level(raw, calibration)
     if binned:
         if out is not None:
             raise ValueError("out takes a full-resolution image; binned=True returns a new array")
@@ -315,8 +345,7 @@ def correct_processed(
     >>> from picamcal.raw.processed import read_processed
     >>> rgb = correct_processed(read_processed("sample.jpg"), cal, "centre")  # doctest: +SKIP
     """
-    if mode not in MODES:
-        raise ValueError(f"unknown mode {mode!r}: choose one of {', '.join(MODES)}")
+    calibration.check_mode(mode)
     rgb = np.array(image.rgb if isinstance(image, ProcessedImage) else image, dtype=np.float32)
     source = image.metadata.get("path", "<image>") if isinstance(image, ProcessedImage) else "<image>"
     if rgb.ndim != 3 or rgb.shape[-1] != 3:

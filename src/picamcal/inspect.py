@@ -6,7 +6,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .errors import RawFormatError
+from .errors import PicamcalError, RawFormatError
 from .raw import RawImage, read_raw
 from .raw.processed import read_processed
 
@@ -55,5 +55,96 @@ def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> d
         "black_level": list(raw.black_level),
         "white_level": raw.white_level,
     }
-    record.update({k: raw.metadata[k] for k in (*_METADATA_KEYS, "declared_pattern") if k in raw.metadata})
+    record.update({k: raw.metadata[k] for k in (*_METADATA_KEYS, "declared_pattern", "frames") if k in raw.metadata})
     return record
+
+
+_JSON_KINDS = {
+    "picamcal-picamera2": "JSON sidecar of a picamera2 raw buffer",
+    "picamcal-acquisition": "acquisition manifest (picamcal acquire)",
+    "picamcal-acquisition-frame": "JSON sidecar of an acquired frame",
+}
+#: JSON files larger than this are not parsed to say what they are.
+_MAX_JSON_BYTES = 16 << 20
+
+
+def what_else(path: Path) -> str | None:
+    """What a file that is not an image is, when picamcal knows: a calibration, a sidecar, a tuning file, ...
+
+    Examples
+    --------
+    >>> what_else(Path("run1/manifest.json"))  # doctest: +SKIP
+    'acquisition manifest (picamcal acquire)'
+    """
+    import json
+
+    from .raw.npz import is_raw_npz
+
+    try:
+        head = path.read_bytes()[:1] if path.stat().st_size <= _MAX_JSON_BYTES else b""
+    except OSError:
+        return None
+    if path.suffix.lower() == ".npz" and not is_raw_npz(path):
+        from .calibration import load_calibration
+
+        try:
+            cal = load_calibration(path)
+        except PicamcalError:
+            import zipfile
+
+            return "NumPy .npz archive (not a raw image or a calibration)" if zipfile.is_zipfile(path) else None
+        return f"picamcal calibration ({cal.sensor or 'unknown sensor'} {cal.width}x{cal.height})"
+    if head not in (b"{", b"["):
+        return None
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return None
+    if not isinstance(record, dict):
+        return "JSON file"
+    if isinstance(record.get("format"), str) and record["format"] in _JSON_KINDS:
+        return _JSON_KINDS[record["format"]]
+    if "algorithms" in record and "target" in record:
+        return f"libcamera tuning file ({record['target']})"
+    if "wheels" in record:
+        return "colour-wheel target layout"
+    return "JSON file"
+
+
+def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dict[str, Any]:
+    """:func:`describe` for any file, never raising: what is not an image is named, what cannot be read says why.
+
+    The record has ``"readable": False`` and an ``"error"`` for a file picamcal cannot read; a file that is not
+    an image but that picamcal knows (a calibration, a JSON sidecar, a manifest, a tuning file) is readable,
+    with its ``"format"`` saying what it is.
+
+    Examples
+    --------
+    >>> [survey(p)["format"] for p in sorted(Path("run1").iterdir())]  # doctest: +SKIP
+    ['dng', 'JSON sidecar of an acquired frame', ...]
+    """
+    path = Path(path)
+    other = what_else(path) if path.is_file() else None
+    if other is not None:
+        return {"path": str(path), "format": other, "raw": False, "readable": True}
+    try:
+        return {**describe(path, read), "readable": True}
+    except PicamcalError as exc:
+        return {"path": str(path), "format": "-", "raw": False, "readable": False, "error": exc.problem}
+
+
+def files_of(items: list[Path]) -> list[Path]:
+    """Files to inspect: each file as given, and every file of each folder (sorted, not hidden, not recursive).
+
+    Examples
+    --------
+    >>> files_of([Path("run1"), Path("extra.dng")])  # doctest: +SKIP
+    [PosixPath('run1/black.dng'), ..., PosixPath('extra.dng')]
+    """
+    found: list[Path] = []
+    for item in items:
+        if item.is_dir():
+            found.extend(sorted(p for p in item.iterdir() if not p.name.startswith(".") and p.is_file()))
+        else:
+            found.append(item)
+    return found

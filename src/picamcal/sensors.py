@@ -7,6 +7,7 @@ take it from the file.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 
 from .errors import PicamcalError
@@ -42,23 +43,26 @@ class Sensor:
     Attributes
     ----------
     name : str
-        Lower-case sensor name as libcamera spells it (``"imx219"``).
+        Lower-case sensor name as libcamera spells it (``"imx219"``); ``_mono`` marks a monochrome variant that
+        has a tuning file of its own.
     camera : str
-        The Raspberry Pi camera module that carries it.
+        The camera module (or kind of module) that carries it.
     width, height : int
-        Full active pixel array in pixels.
+        Full active pixel array in pixels (the sensor's largest mode).
     bit_depth : int
-        Native bits per pixel of its raw output.
+        Native bits per pixel of its raw output (its deepest mode).
     black_level : int
-        Black level in native DN.
+        Black level in native DN (libcamera's ``rpi.black_level`` is the same on a 16-bit scale).
     pixel_pitch_um : float
         Pixel pitch in micrometres.
-    default_pattern : str
-        Bayer order of the unflipped sensor, used by the simulator only.
+    default_pattern : str or None
+        Bayer order of the unflipped sensor, used by the simulator only; None for a monochrome sensor.
     legacy_model : str or None
         EXIF ``Model`` the legacy firmware writes in JPEG+raw files (LibRaw identifies files by it).
     legacy_modes : tuple of LegacyMode
         Raw modes of the legacy firmware; empty for sensors it does not support.
+    monochrome : bool
+        No colour filter array: picamcal, which unmixes colour crosstalk, refuses its images.
     """
 
     name: str
@@ -68,9 +72,10 @@ class Sensor:
     bit_depth: int
     black_level: int
     pixel_pitch_um: float
-    default_pattern: str
+    default_pattern: str | None
     legacy_model: str | None = None
     legacy_modes: tuple[LegacyMode, ...] = ()
+    monochrome: bool = False
 
     @property
     def white_level(self) -> int:
@@ -81,9 +86,16 @@ class Sensor:
 #: libcamera's lens shading grid (columns, rows) per target: it comes from the target, not the file.
 LSC_GRIDS: dict[str, tuple[int, int]] = {"bcm2835": (16, 12), "pisp": (32, 32)}
 
+# Sources, cited per entry: black levels from Raspberry Pi's libcamera tuning files
+# (raspberrypi/libcamera src/ipa/rpi/vc4/data/<name>.json, rpi.black_level on a 16-bit scale: 4096 = 64 at
+# 10 bits = 256 at 12); sizes, bit depths and the unflipped Bayer order from the Linux sensor drivers
+# (drivers/media/i2c/<driver>.c: pixel array defines and media bus codes); pixel pitches from libcamera's
+# src/libcamera/sensor/camera_sensor_properties.cpp (unitCellSize) where listed there, else the maker's datasheet.
 SENSORS: dict[str, Sensor] = {
     s.name: s
     for s in (
+        # ov5647.json 1024 (16 at 10 bits); ov5647.c 2592x1944 10-bit; unitCellSize 1400. The Bayer orders of the
+        # first four entries are the simulator's defaults since the registry's first version; files carry their own.
         Sensor(
             "ov5647",
             "Camera Module v1",
@@ -102,6 +114,7 @@ SENSORS: dict[str, Sensor] = {
                 LegacyMode((6, 7), 640, 480, 10, 445440),
             ),
         ),
+        # imx219.json 4096 (64 at 10 bits); imx219.c 3280x2464 10-bit; unitCellSize 1120.
         Sensor(
             "imx219",
             "Camera Module v2",
@@ -121,6 +134,7 @@ SENSORS: dict[str, Sensor] = {
                 LegacyMode((7,), 640, 480, 10, 445440),
             ),
         ),
+        # imx477.json 4096 (256 at 12 bits); imx477.c 4056x3040 SRGGB12; unitCellSize 1550.
         Sensor(
             "imx477",
             "HQ Camera",
@@ -139,7 +153,48 @@ SENSORS: dict[str, Sensor] = {
             ),
         ),
         # The Camera Module 3 has no legacy raw format (libcamera only).
+        # imx708.json 4096 (64 at 10 bits); imx708.c 4608x2592 SRGGB10; unitCellSize 1400.
         Sensor("imx708", "Camera Module 3", 4608, 2592, 10, 64, 1.4, "RGGB"),
+        # imx296.json 3840 (60 at 10 bits); imx296.c IMX296_PIXEL_ARRAY 1456x1088, SBGGR10_1X10 (Y10 when mono);
+        # unitCellSize 3450.
+        Sensor("imx296", "Global Shutter Camera", 1456, 1088, 10, 60, 3.45, "BGGR"),
+        # imx296_mono.json 3840: the same sensor without a colour filter array.
+        Sensor("imx296_mono", "IMX296 monochrome modules", 1456, 1088, 10, 60, 3.45, None, monochrome=True),
+        # imx290.json 3840 (240 at 12 bits); imx290.c 1920x1080, SRGGB10/SRGGB12; unitCellSize 2900.
+        Sensor("imx290", "IMX290 modules (third party)", 1920, 1080, 12, 240, 2.9, "RGGB"),
+        # imx462.json 3840 (240 at 12 bits); driven by imx290.c (1920x1080, SRGGB12); unitCellSize 2900.
+        Sensor("imx462", "IMX462 modules (third party)", 1920, 1080, 12, 240, 2.9, "RGGB"),
+        # se327m12.json 3840 (240 at 12 bits); an IMX327 module, driven by imx290.c (1920x1080, SRGGB12);
+        # unitCellSize 2900 (imx327).
+        Sensor("se327m12", "SE327M12 module (IMX327)", 1920, 1080, 12, 240, 2.9, "RGGB"),
+        # imx378.json 4096 (256 at 12 bits); driven by imx477.c (4056x3040, SRGGB12); 1.55 um (Sony IMX378).
+        Sensor("imx378", "IMX378 modules (third party)", 4056, 3040, 12, 256, 1.55, "RGGB"),
+        # imx519.json 4096 (64 at 10 bits); imx519.c IMX519_PIXEL_ARRAY 4656x3496, SRGGB10 unflipped;
+        # unitCellSize 1220.
+        Sensor("imx519", "Arducam 16MP (IMX519)", 4656, 3496, 10, 64, 1.22, "RGGB"),
+        # imx500.json 4096 (64 at 10 bits); imx500.c 4056x3040 SRGGB10; 1.55 um (Sony IMX500).
+        Sensor("imx500", "AI Camera", 4056, 3040, 10, 64, 1.55, "RGGB"),
+        # imx283.json 3200 (200 at 12 bits); imx283.c IMX283_PIXEL_ARRAY 5472x3648, SRGGB12 first;
+        # unitCellSize 2400.
+        Sensor("imx283", "IMX283 modules (third party)", 5472, 3648, 12, 200, 2.4, "RGGB"),
+        # imx415.json 3840 (60 at 10 bits); imx415.c IMX415_PIXEL_ARRAY 3864x2192, SGBRG10; unitCellSize 1450.
+        Sensor("imx415", "IMX415 modules (third party)", 3864, 2192, 10, 60, 1.45, "GBRG"),
+        # imx335.json 3200 (200 at 12 bits); imx335.c IMX335_PIXEL_ARRAY 2592x1944, SRGGB12; unitCellSize 2000.
+        Sensor("imx335", "IMX335 modules (third party)", 2592, 1944, 12, 200, 2.0, "RGGB"),
+        # imx585.json 3200 (200 at 12 bits); imx585.c IMX585_PIXEL_ARRAY 3840x2160, SRGGB12; 2.9 um (Sony IMX585).
+        Sensor("imx585", "IMX585 modules (third party)", 3840, 2160, 12, 200, 2.9, "RGGB"),
+        # imx585_mono.json: the same sensor without a colour filter array.
+        Sensor("imx585_mono", "IMX585 monochrome modules", 3840, 2160, 12, 200, 2.9, None, monochrome=True),
+        # imx662.json black_level_func 3200 at gain 1 (200 at 12 bits; it rises with gain); imx662.c
+        # IMX662_PIXEL_ARRAY 1920x1080, SRGGB12; 2.9 um (Sony IMX662).
+        Sensor("imx662", "IMX662 modules (third party)", 1920, 1080, 12, 200, 2.9, "RGGB"),
+        # ov64a40.json 4096 (64 at 10 bits); ov64a40.c OV64A40_PIXEL_ARRAY 9248x6944, SBGGR10 unflipped;
+        # unitCellSize 1008.
+        Sensor("ov64a40", "Arducam 64MP (OV64A40)", 9248, 6944, 10, 64, 1.008, "BGGR"),
+        # ov9281_mono.json 4096 (64 at 10 bits); ov9282.c 1280x800 Y10; unitCellSize 3000.
+        Sensor("ov9281", "OV9281 global shutter modules", 1280, 800, 10, 64, 3.0, None, monochrome=True),
+        # ov7251_mono.json 4096 (64 at 10 bits); ov7251.c 640x480 Y10; unitCellSize 3000.
+        Sensor("ov7251", "OV7251 global shutter modules", 640, 480, 10, 64, 3.0, None, monochrome=True),
     )
 }
 
@@ -158,6 +213,11 @@ def black_level_at(sensor: Sensor, bit_depth: int) -> float:
 def get_sensor(name: str) -> Sensor:
     """Return the registry entry for a sensor name (case-insensitive).
 
+    Raises
+    ------
+    PicamcalError
+        The name is not in the registry: the message lists the known names (and the nearest one).
+
     Examples
     --------
     >>> get_sensor("IMX219").width
@@ -166,24 +226,30 @@ def get_sensor(name: str) -> Sensor:
     try:
         return SENSORS[name.lower()]
     except KeyError:
-        known = ", ".join(SENSORS)
-        raise PicamcalError(f"unknown sensor {name!r} (known: {known})") from None
+        close = difflib.get_close_matches(name.lower(), list(SENSORS), n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]}?" if close else ""
+        raise PicamcalError(f"unknown sensor {name!r} (known: {', '.join(SENSORS)}){hint}") from None
 
 
 def find_sensor_name(text: str | None) -> str | None:
     """Return the registry name that occurs in a free-text camera model string, or None.
 
+    The longest name that occurs wins, so a variant with its own entry (``imx296_mono``) is not taken for its
+    base sensor, and a model such as picamera2's ``"imx708_wide"`` gives ``"imx708"``.
+
     Examples
     --------
     >>> find_sensor_name("RP_imx477")
     'imx477'
+    >>> find_sensor_name("imx708_wide_noir"), find_sensor_name("IMX296_MONO")
+    ('imx708', 'imx296_mono')
     >>> find_sensor_name("Canon EOS") is None
     True
     """
     if not text:
         return None
     lowered = text.lower()
-    for name in SENSORS:
-        if name in lowered:
-            return name
-    return None
+    return next((name for name in _BY_LENGTH if name in lowered), None)
+
+
+_BY_LENGTH = sorted(SENSORS, key=len, reverse=True)

@@ -56,7 +56,7 @@ from numpy.typing import ArrayLike
 from scipy.special import ndtr
 
 from ._atomic import atomic_path
-from .bayer import bin_sites
+from .bayer import bin_sites, sites_to_channels
 from .colour_wheel import SEGMENTS
 from .errors import OutputError, PicamcalError
 from .raw.brcm import write_brcm
@@ -321,6 +321,8 @@ def make_camera(
     14
     """
     spec = get_sensor(sensor)
+    if spec.monochrome:
+        raise PicamcalError(f"the {spec.name} is a monochrome sensor: the simulator models colour (Bayer) sensors")
     pattern = spec.default_pattern if pattern is None else str(pattern).upper()
     if pattern not in PATTERNS:
         raise PicamcalError(f"unknown Bayer pattern {pattern!r} (expected one of {', '.join(PATTERNS)})")
@@ -514,6 +516,21 @@ def expected_response(camera: SimulatedCamera, scene: str | ArrayLike) -> np.nda
     """
     amounts, _ = _scene_amounts(camera, scene)
     return np.asarray(_response(camera, amounts), dtype=np.float64)
+
+
+def _white_gains(camera: SimulatedCamera) -> list[float]:
+    """The camera's own white balance: G / R and G / B of its noiseless white response over the central half.
+
+    The central half of the frame (whole 2x2 blocks) is where ``picamcal acquire``'s auto white balance
+    measures, so simulated and acquired frames carry the same ``colour_gains`` (up to noise); a DNG's
+    AsShotNeutral made from them renders the white reference neutral there.
+    """
+    white = _uniform_response(camera, _REFERENCE_AMOUNTS["white"])
+    y0, x0 = camera.height // 8 * 2, camera.width // 8 * 2
+    centre = white[y0 : camera.height - y0, x0 : camera.width - x0]
+    sites = np.array([centre[k // 2 :: 2, k % 2 :: 2].mean() for k in range(4)])
+    red, green, blue = sites_to_channels(sites, camera.pattern)
+    return [round(float(green / red), 4), round(float(green / blue), 4)]
 
 
 def dust_specks(
@@ -755,7 +772,8 @@ def simulate_references(
     Returns
     -------
     dict of str to RawImage
-        Keyed by :data:`REFERENCES`, in that order.
+        Keyed by :data:`REFERENCES`, in that order. Each carries the camera's white balance as
+        ``metadata["colour_gains"]`` (red, blue), what a camera with its white balance frozen on the white records.
 
     Examples
     --------
@@ -765,10 +783,14 @@ def simulate_references(
     (['white', 'red', 'green', 'blue', 'black'], 2)
     """
     specks = dust_specks(camera, dust, rng=_stream(seed, _DUST_STREAM))
-    return {
+    frames = {
         name: render(camera, name, noise=noise, rng=_stream(seed, i), dust=specks if name == "white" else None)
         for i, name in enumerate(REFERENCES)
     }
+    gains = _white_gains(camera)
+    for raw in frames.values():
+        raw.metadata["colour_gains"] = list(gains)
+    return frames
 
 
 def simulate_target(camera: SimulatedCamera, *, noise: bool = True, seed: int = 0) -> tuple[RawImage, dict]:
@@ -777,7 +799,7 @@ def simulate_target(camera: SimulatedCamera, *, noise: bool = True, seed: int = 
     Returns
     -------
     RawImage
-        The frame, ``metadata["scene"] == "target"``.
+        The frame, ``metadata["scene"] == "target"``, with the references' ``metadata["colour_gains"]``.
     dict
         Its :func:`wheel_layout`.
 
@@ -791,6 +813,7 @@ def simulate_target(camera: SimulatedCamera, *, noise: bool = True, seed: int = 
     layout = wheel_layout(camera.width, camera.height)
     raw = render(camera, wheel_scene(layout), noise=noise, rng=_stream(seed, _TARGET_STREAM))
     raw.metadata["scene"] = "target"
+    raw.metadata["colour_gains"] = _white_gains(camera)
     return raw, layout
 
 

@@ -22,6 +22,10 @@ The checks follow the paper:
   references alike cancels out of it (each bin's colour response is normalised to its white), so what
   shows here is noise, coloured dirt, or light that changed between the references.
 
+A flat-field calibration (white only, ``Calibration.has_unmixing`` False) gets the checks that apply to a
+flat field: ``vignetting_centre``, ``dust`` and ``exposure`` (of the white and the dark frame). The last
+three are about the colour unmixing it does not have (:data:`UNMIXING_CHECKS`).
+
 Examples
 --------
 >>> from picamcal import calibrate
@@ -47,6 +51,7 @@ from ..calibration import Calibration
 from ..raw.model import CHANNELS, site_channels
 
 __all__ = [
+    "UNMIXING_CHECKS",
     "Check",
     "check_conditioning",
     "check_dust",
@@ -63,6 +68,8 @@ __all__ = [
 ]
 
 Verdict = Literal["pass", "warn"]
+#: The checks about the colour-unmixing field, which a flat-field calibration (white only) does not have.
+UNMIXING_CHECKS = ("conditioning", "noise_penalty", "unmixing_smoothness")
 
 #: Vignetting centre offset (% of the half-diagonal) above which the check warns. With a CRA of about 27
 #: degrees at the corner (tan = 0.5, the simulated IMX219) it is a tilt of 0.57 degrees, and moving the
@@ -154,7 +161,8 @@ def diagnose(
     -------
     list of Check
         ``vignetting_centre``, ``dust``, ``exposure``, ``conditioning``, ``noise_penalty``,
-        ``unmixing_smoothness``, in that order.
+        ``unmixing_smoothness``, in that order; for a flat-field calibration (white only) the first
+        three (the others, :data:`UNMIXING_CHECKS`, are about the colour unmixing it does not have).
 
     Examples
     --------
@@ -162,10 +170,15 @@ def diagnose(
     >>> [c.name for c in checks if c.verdict == "warn"]  # doctest: +SKIP
     ['dust']
     """
-    return [
+    checks = [
         check_vignetting_centre(calibration, cra_corner_deg=cra_corner_deg),
         check_dust(calibration),
         check_exposure(calibration),
+    ]
+    if not calibration.has_unmixing:
+        return checks
+    return [
+        *checks,
         check_conditioning(calibration),
         check_noise_penalty(calibration, max_penalty=max_noise_penalty),
         check_unmixing_smoothness(calibration),
@@ -591,7 +604,8 @@ def check_exposure(
     pixels at the white level warns, naming it. The default, none, also catches a few hot pixels; raise
     it for a sensor known to have some. Levels come from the binned black-subtracted responses,
     as a fraction of the range between black and white level: the white's median over all pixels, and
-    each colour reference's median in its own channel (red pixels under the red light, ...).
+    each colour reference's median in its own channel (red pixels under the red light, ...); a
+    flat-field calibration has the white's only.
 
     Examples
     --------
@@ -603,7 +617,7 @@ def check_exposure(
     responses = calibration.site_responses
     sites = site_channels(calibration.pattern)
     levels = {"white": float(np.median(responses[0])) / usable}
-    for index, role in enumerate(("red", "green", "blue")):
+    for index, role in enumerate(("red", "green", "blue")[: len(responses) - 1]):
         levels[role] = float(np.median(responses[1 + index][..., sites == index])) / usable
     inputs = {str(info.get("role")): info for info in calibration.meta.get("inputs", [])}
     clipped = {role: float(info["clipped_fraction"]) for role, info in inputs.items() if "clipped_fraction" in info}
@@ -619,7 +633,7 @@ def check_exposure(
             f"white reference is dim: median {100 * levels['white']:.0f} % of the range "
             f"(aim for {100 * min_white_fraction:.0f} % or more); increase the exposure"
         )
-    for role in ("red", "green", "blue"):
+    for role in ("red", "green", "blue")[: len(responses) - 1]:
         if levels[role] < min_colour_fraction:
             problems.append(
                 f"{role} reference is too dim to measure crosstalk: the median of its {role} pixels is "
@@ -650,6 +664,7 @@ def check_conditioning(calibration: Calibration, *, max_condition: float = MAX_C
     >>> check_conditioning(cal).values["worst_condition"]  # doctest: +SKIP
     6.9
     """
+    calibration.require_unmixing("the conditioning check")
     bad = np.asarray(calibration.ill_conditioned, dtype=bool)
     nbad = int(calibration.meta.get("ill_conditioned_bins", np.count_nonzero(bad)))
     condition = np.where(bad, -np.inf, calibration.condition_number)
@@ -689,6 +704,7 @@ def check_noise_penalty(calibration: Calibration, *, max_penalty: float = MAX_NO
     >>> check_noise_penalty(cal).values["centre_max"]  # doctest: +SKIP
     3.3
     """
+    calibration.require_unmixing("the noise penalty check")
     y, x = calibration.bin_centres
     values: dict[str, Any] = {"max_penalty": max_penalty}
     for mode in ("flat", "centre", "pure"):
@@ -781,6 +797,7 @@ def check_unmixing_smoothness(calibration: Calibration, *, max_rms: float = MAX_
     >>> check_unmixing_smoothness(cal).values["rms"]  # doctest: +SKIP
     0.0064
     """
+    calibration.require_unmixing("the unmixing smoothness check")
     nby, nbx = calibration.unmixing.shape[:2]
     if min(nby, nbx) < 5:
         summary = f"too few bins ({nby} x {nbx}) to judge the smoothness of the unmixing field"

@@ -135,6 +135,7 @@ def noise_penalty_maps(
 
     The factor by which each correction multiplies read noise relative to the sensor centre
     (:meth:`Calibration.noise_penalty`; paper, Figure "unmixing_matrix_and_snr" (b, c)), on one scale.
+    A flat-field calibration (white only) has the ``flat`` map alone.
 
     Parameters
     ----------
@@ -149,12 +150,13 @@ def noise_penalty_maps(
     if channel is not None and channel not in CHANNELS:
         raise ValueError(f"channel must be one of R, G, B, got {channel!r}")
     maps = {}
-    for mode in ("flat", "centre"):
+    for mode in ("flat", "centre") if calibration.has_unmixing else ("flat",):
         penalty = calibration.noise_penalty(mode)
         maps[mode] = penalty.max(axis=-1) if channel is None else penalty[..., CHANNELS.index(channel)]
     norm = Normalize(1.0, max(max(float(m.max()) for m in maps.values()), 1.0 + 1e-6))
     y, x = calibration.bin_centres
-    fig, axes = _figure(calibration, 1, 2)
+    # One map alone (a flat calibration) is drawn larger, so the figure is as wide as its title.
+    fig, axes = _figure(calibration, 1, len(maps), panel_width=_PANEL_WIDTH if len(maps) > 1 else 6.0)
     titles = {"flat": "vignetting correction (flat)", "centre": "unmixing to the centre (centre)"}
     for ax, (mode, values) in zip(axes[0], maps.items(), strict=True):
         mesh = _map(ax, calibration, values, NOISE_CMAP, norm)
@@ -177,7 +179,8 @@ def normalised_references(
     relative_to: str = "centre",
     overwrite: bool = True,
 ) -> Path:
-    """The white, red, green and blue references as RGB images, with R, G, B line sections below.
+    """The white, red, green and blue references (the white alone for a flat calibration) as RGB images,
+    with R, G, B line sections below.
 
     ``relative_to="centre"`` divides every reference by the white's mean in the central ninth, per
     channel (paper, Figure "example_run": vignetting and colour both visible); ``"white"`` divides each by
@@ -203,11 +206,14 @@ def normalised_references(
     y, x = calibration.bin_centres
     row = int(np.argmin(np.abs(y - (calibration.height - 1) / 2.0)))
     top = max(1.05, float(np.percentile(normalised[:, row], 99.9)) * 1.05)
-    width = 4 * 3.0
+    names = ("white", "red", "green", "blue")[: len(channels)]
+    width = max(len(names) * 3.0, 7.0)  # the white alone (a flat calibration) keeps room for its title
     fig = Figure(figsize=(width, 3.0 * calibration.height / calibration.width + 2.6), layout="constrained")
-    axes = fig.subplots(2, 4, sharex=True, height_ratios=(calibration.height / calibration.width * 1.6, 1))
+    axes = fig.subplots(
+        2, len(names), sharex=True, squeeze=False, height_ratios=(calibration.height / calibration.width * 1.6, 1)
+    )
     xe, ye = _edges(calibration)
-    for k, name in enumerate(("white", "red", "green", "blue")):
+    for k, name in enumerate(names):
         ax = axes[0, k]
         ax.imshow(
             np.clip(normalised[k], 0.0, 1.0),
@@ -227,7 +233,8 @@ def normalised_references(
             section.set_ylabel("relative response")
             section.legend(loc="lower center", ncols=3, fontsize="small")
     basis = "the white's centre, per channel" if relative_to == "centre" else "the white, bin by bin"
-    fig.suptitle(f"References normalised to {basis}; sections along y = {y[row]:.0f} px")
+    sep = "; " if len(names) > 1 else "\n"
+    fig.suptitle(f"References normalised to {basis}{sep}sections along y = {y[row]:.0f} px")
     return _save(fig, path, overwrite)
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration import MODES, Calibration
+from ..calibration import Calibration
 from ..correct import correct, correct_processed, demosaic
 from ..errors import RawFormatError
 from ..raw import read_raw
@@ -19,7 +19,8 @@ def images_by_mode(
 ) -> dict[str, np.ndarray]:
     """Linear RGB images of one file, keyed by correction mode.
 
-    A raw file with a calibration gives every mode (``balance`` is the uncorrected image); without a
+    A raw file with a calibration gives every mode it has (``balance`` is the uncorrected image; a flat-field
+    calibration has no ``centre`` or ``pure``); without a
     calibration, only ``uncorrected`` (black-subtracted, demosaiced, scaled so its 99th percentile is 1).
     A processed file (JPEG, PNG, TIFF) gives ``uncorrected`` (linearised with ``input_encoding``) and, with
     a calibration, the unmixing modes of :func:`picamcal.correct.correct_processed`.
@@ -39,10 +40,10 @@ def images_by_mode(
         except RawFormatError:
             raise raw_error from None
         images = {"uncorrected": processed.rgb}
-        if calibration is not None:
+        if calibration is not None and calibration.has_unmixing:  # a flat calibration has nothing to unmix with
             images.update({mode: correct_processed(processed, calibration, mode) for mode in ("centre", "pure")})
         return images
     if calibration is not None:
-        return {mode: correct(raw, calibration, mode) for mode in MODES}
+        return {mode: correct(raw, calibration, mode) for mode in calibration.modes}
     rgb = demosaic(raw.black_subtracted(), raw.pattern)
     return {"uncorrected": rgb / max(float(np.percentile(rgb, 99)), 1e-6)}

@@ -3,7 +3,8 @@
 A uint8 array of shape (4, H // 64 + 1, W // 64 + 1) from the sensor's full resolution, whatever the
 mode: planes R, Gr, Gb, B; each entry is the gain at the centre of a 64 x 64-pixel cell (sensor pixel
 32 + 64 k), in u3.5 fixed point (32 = 1.0, at most 255, about 7.97), interpolated bilinearly by the
-firmware. It corrects the processed (ISP) output only (FORMATS.md section 5).
+firmware. It corrects the processed (ISP) output only (FORMATS.md section 5). It needs only the flat
+field, so a flat-field calibration (white only) exports it as a full one does, to the same table.
 
 Loading it with the picamera fork::
 

@@ -27,6 +27,8 @@ from .isp import GAIN_LIMITS, table_to_pixels
 #: Where libcamera installs the stock tuning files on Raspberry Pi OS.
 STOCK_TUNING_DIR = Path("/usr/share/libcamera/ipa/rpi")
 _TARGET_DIRS = {"bcm2835": "vc4", "pisp": "pisp"}
+#: Raspberry Pi's stock tuning files that ship with picamcal, for computers that are not a Raspberry Pi.
+BUNDLED_TUNING_DIR = Path(__file__).resolve().parent.parent / "data" / "libcamera-tuning"
 #: The names users know the targets by (libcamera's IPA directories) -> tuning file targets.
 TARGET_NAMES = {"vc4": "bcm2835", "pisp": "pisp"}
 
@@ -78,21 +80,43 @@ def check_tuning(tuning: Any, source: str | os.PathLike[str] | None = None) -> s
     return str(target)
 
 
+def bundled_tuning_sensors(target: str) -> list[str]:
+    """The sensors whose stock tuning file for ``target`` ships with picamcal.
+
+    Examples
+    --------
+    >>> bundled_tuning_sensors("pisp")
+    ['imx219', 'imx477', 'imx708', 'ov5647']
+    """
+    return sorted(p.stem for p in (BUNDLED_TUNING_DIR / _TARGET_DIRS[target]).glob("*.json"))
+
+
 def stock_tuning_path(sensor: str, target: str) -> Path:
-    """The stock tuning file libcamera installs for a sensor on a Raspberry Pi.
+    """The stock tuning file of a sensor for a target (``"bcm2835"`` or ``"pisp"``).
+
+    On a Raspberry Pi, the file libcamera installed (it matches the libcamera the camera runs); elsewhere the
+    copy picamcal ships (Raspberry Pi's stock files, BSD-2-Clause, ``picamcal/data/libcamera-tuning``).
 
     Raises
     ------
     TuningError
-        Not on a Raspberry Pi with libcamera's files (then ``--base`` is needed).
+        Neither exists for this sensor (then ``--base`` is needed).
+
+    Examples
+    --------
+    >>> stock_tuning_path("imx219", "pisp").name
+    'imx219.json'
     """
-    path = STOCK_TUNING_DIR / _TARGET_DIRS[target] / f"{sensor}.json"
-    if not path.is_file():
-        raise TuningError(
-            f"no stock tuning file at {path} (this is not a Raspberry Pi with libcamera installed): "
-            "give the base tuning file with --base"
-        )
-    return path
+    folder = _TARGET_DIRS[target]
+    for root in (STOCK_TUNING_DIR, BUNDLED_TUNING_DIR):
+        path = root / folder / f"{sensor}.json"
+        if path.is_file():
+            return path
+    raise TuningError(
+        f"no stock {folder} tuning file for the {sensor}: picamcal ships those of "
+        f"{', '.join(bundled_tuning_sensors(target))}, and this is not a Raspberry Pi with libcamera's own in "
+        f"{STOCK_TUNING_DIR}; give the sensor's tuning file with --base"
+    )
 
 
 def _bin_average(n_pixels: int, bin_size: int) -> np.ndarray:
@@ -198,7 +222,11 @@ def alsc_tables(
 
 
 def _ccm_from_calibration(calibration: Calibration) -> list[float]:
-    """``Cx``, the centre's inverse colour response: white-balanced camera RGB to the illuminator's primaries."""
+    """``Cx``, the centre's inverse colour response: white-balanced camera RGB to the illuminator's primaries.
+
+    A flat-field calibration (white only) has no colour response: CalibrationFileError, one line with the fix.
+    """
+    calibration.require_unmixing("--ccm (the colour matrix)")
     return [round(float(v), 5) for v in calibration.colour_response_inverse.ravel()]
 
 

@@ -1,23 +1,34 @@
 """Raw image formats behind one function, :func:`read_raw`.
 
-Each format lives in its own module (``dng``, ``npz``); nothing outside that module knows its
-byte layout.
+Each format lives in its own module (``dng``, ``brcm``, ``picamera2``, ``headless``, ``npz``); nothing outside
+that module knows its byte layout.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import PicamcalWarning, RawFormatError
+from ..sensors import black_level_at, find_sensor_name, get_sensor
 from ._files import file_head
 from .brcm import is_jpeg, read_brcm, write_brcm
 from .dng import is_dng, read_dng, write_dng
+from .headless import headless_hint, read_headless
 from .model import PATTERNS, RawImage, site_channels
 from .npz import read_npz, write_npz
-from .picamera2 import from_picamera2, is_npy, read_picamera2_npy, to_picamera2, write_picamera2_npy
+from .picamera2 import (
+    from_picamera2,
+    is_npy,
+    read_picamera2_npy,
+    require_colour_sensor,
+    to_picamera2,
+    write_picamera2_npy,
+)
 from .verify import check_metadata
 
 __all__ = [
@@ -30,6 +41,7 @@ __all__ = [
     "override",
     "read_brcm",
     "read_dng",
+    "read_headless",
     "read_npz",
     "read_picamera2_npy",
     "read_raw",
@@ -64,7 +76,9 @@ def read_raw(
 
     The format is recognised from the file's first bytes, not its name. Supported: DNG (read by
     LibRaw through rawpy), the legacy firmware's JPEG with a BRCM raw block, picamera2 raw buffers
-    saved as ``.npy`` with a JSON sidecar, and picamcal's own raw ``.npz`` (docs/formats.md).
+    saved as ``.npy`` with a JSON sidecar, and picamcal's own raw ``.npz`` (docs/formats.md). With
+    ``raw_format`` the file is read as a headless dump (``rpicam-raw -o``, :func:`read_headless`)
+    whatever its bytes.
 
     What the file declares is checked against its data (:func:`picamcal.raw.verify.check_metadata`):
     a Bayer order whose greens sit on the wrong diagonal, or a missing black level, gives a
@@ -80,15 +94,21 @@ def read_raw(
         Override the file's black level (DN; one value, or one per 2x2 site row-major).
     raw_format : str, optional
         Read the file as a headless raw dump (``rpicam-raw``, ``libcamera-raw``) in this libcamera format
-        (``SBGGR10_CSI2P``, ``SRGGB12_CSI2P``, ``SGBRG16``, ...); needs ``size``.
+        (``SBGGR10_CSI2P``, ``SRGGB12_CSI2P``, ``SGBRG16``, ``BGGR_PISP_COMP1``, ...; case-insensitive); needs
+        ``size``. Greyscale formats (``R10_CSI2P``, ...) are refused.
     size : (width, height), optional
         With ``raw_format``: the frame size in pixels.
     stride : int, optional
-        With ``raw_format``: bytes per row (default: libcamera's alignment).
+        With ``raw_format``: bytes per row. By default libcamera's: the row's bytes rounded up to 32 on a Pi 4
+        (Unicam), to 64 on a Pi 5 (PiSP); the format's own Pi's first, then the other's, then no padding, the
+        first that divides the file into whole frames (:mod:`picamcal.raw.headless` cites the sources).
     frame : int, optional
-        With ``raw_format``: which frame of a dump of several frames (default 0, the first).
+        With ``raw_format``: which frame of a dump of several frames (default 0, the first);
+        ``metadata["frames"]`` gives how many there are.
     sensor : str, optional
-        The sensor, for files that do not say (a headless dump): its registry constants are used.
+        The sensor, for files that do not say (a headless dump, a picamera2 buffer without a model): a registry
+        sensor gives the black level when the file has none; another name is kept as given, with
+        ``metadata["sensor_known"]`` false. A file that names its sensor keeps its own.
     verify : bool
         Check the declared metadata against the data and warn.
 
@@ -96,12 +116,15 @@ def read_raw(
     -------
     RawImage
         The mosaic with its pattern, black and white levels, sensor and metadata
-        (``metadata["format"]`` names the format).
+        (``metadata["format"]`` names the format). The black level is NaN when nothing gives it (a headless
+        dump of an unknown sensor without ``black_level``): :func:`picamcal.raw.model.require_black_level`
+        raises where one is needed, naming the three ways to give it.
 
     Raises
     ------
     RawFormatError
-        The file is missing, unreadable, empty or not a raw image.
+        The file is missing, unreadable, empty or not a raw image; for a headless dump, see
+        :func:`read_headless`.
 
     Examples
     --------
@@ -109,15 +132,39 @@ def read_raw(
     >>> raw = picamcal.read_raw("white.dng")  # doctest: +SKIP
     >>> raw.bayer.shape, raw.pattern  # doctest: +SKIP
     ((2464, 3280), 'BGGR')
+    >>> dump = picamcal.read_raw("video.raw", raw_format="SRGGB12_CSI2P", size=(4056, 3040), frame=3)  # doctest: +SKIP
+    >>> dump.metadata["frames"], dump.sensor, dump.black_level[0]  # doctest: +SKIP
+    (12, None, nan)
     """
     path = Path(path)
-    raw = _read_by_signature(path, file_head(path))
-    if pattern is not None or black_level is not None:
-        raw = override(raw, pattern=pattern, black_level=black_level)
+    if raw_format is not None:
+        raw = read_headless(path, raw_format, size, stride=stride, frame=frame, sensor=sensor, black_level=black_level)
+        if pattern is not None:
+            raw = override(raw, pattern=pattern)
+    else:
+        if size is not None or stride is not None or frame is not None:
+            raise RawFormatError("a size, stride or frame describes a headless dump: give its raw format too", path)
+        raw = _read_by_signature(path, file_head(path))
+        if sensor is not None and raw.sensor is None:
+            raw = _with_sensor(raw, sensor)
+        if pattern is not None or black_level is not None:
+            raw = override(raw, pattern=pattern, black_level=black_level)
     if verify:
         for problem in check_metadata(raw):
             warnings.warn(f"{path}: {problem}", PicamcalWarning, stacklevel=2)
     return raw
+
+
+def _with_sensor(raw: RawImage, sensor: str) -> RawImage:
+    """``raw`` with the sensor its file does not name, and that sensor's black level if the file has none."""
+    name = find_sensor_name(sensor)
+    require_colour_sensor(name, raw.source)
+    meta = {**raw.metadata, "sensor_known": name is not None}
+    black = raw.black_level
+    if name is not None and not all(math.isfinite(b) for b in black):
+        black = (black_level_at(get_sensor(name), raw.bit_depth),) * 4
+        meta["black_level_source"] = "registry"
+    return dataclasses.replace(raw, sensor=name or sensor, black_level=black, metadata=meta)
 
 
 def _read_by_signature(path: Path, head: bytes) -> RawImage:
@@ -131,8 +178,11 @@ def _read_by_signature(path: Path, head: bytes) -> RawImage:
         return read_picamera2_npy(path)
     for signature, what in _SIGNATURES.items():
         if head.startswith(signature):
-            raise RawFormatError(f"{what}, not a raw image", path)
-    raise RawFormatError("not a raw image format picamcal reads (DNG, JPEG+raw, picamera2 .npy or picamcal .npz)", path)
+            raise RawFormatError(f"{what}, not a raw image (a processed image? use --processed)", path)
+    raise RawFormatError(
+        "not a raw image format picamcal reads (DNG, JPEG+raw, picamera2 .npy or picamcal .npz)" + headless_hint(path),
+        path,
+    )
 
 
 def override(

@@ -19,6 +19,7 @@ here except inside :func:`capture_raw`, which is given a camera object.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import json
 import math
@@ -38,14 +39,31 @@ from ..sensors import black_level_at, find_sensor_name, get_sensor
 from .model import RawImage
 from .packing import pack, packed_row_bytes, unpack
 
-__all__ = ["capture_raw", "from_picamera2", "is_npy", "read_picamera2_npy", "write_picamera2_npy"]
+__all__ = [
+    "RAW_FORMATS",
+    "RawFormat",
+    "capture_raw",
+    "from_picamera2",
+    "is_npy",
+    "parse_raw_format",
+    "read_picamera2_npy",
+    "write_picamera2_npy",
+]
 
 SIDECAR_FORMAT = "picamcal-picamera2"
 SIDECAR_VERSION = 1
 
-_ORDERS = "RGGB|GRBG|GBRG|BGGR"
-_UNCOMPRESSED = re.compile(rf"S({_ORDERS})(8|10|12|14|16)(_CSI2P)?")
-_PISP = re.compile(rf"({_ORDERS})(?:16)?_PISP_COMP1")
+_ORDERS = ("RGGB", "GRBG", "GBRG", "BGGR")
+_UNCOMPRESSED = re.compile(rf"S({'|'.join(_ORDERS)})(8|10|12|14|16)(_CSI2P)?")
+_PISP = re.compile(rf"({'|'.join(_ORDERS)})(?:16)?_PISP_COMP1")
+# libcamera's greyscale formats (R8, R10_CSI2P, ..., MONO_PISP_COMP1) and V4L2's names for them (Y10P, GREY).
+_MONO = re.compile(r"(?:R|Y)(?:8|10|12|14|16)(?:_CSI2P|P)?|MONO(?:16)?_PISP_COMP1|GREY")
+#: Every raw format name picamcal reads (libcamera's spelling; matched case-insensitively).
+RAW_FORMATS: tuple[str, ...] = (
+    *(f"S{order}{bits}" for order in _ORDERS for bits in (8, 10, 12, 14, 16)),
+    *(f"S{order}{bits}_CSI2P" for order in _ORDERS for bits in (10, 12, 14)),
+    *(f"{order}_PISP_COMP1" for order in _ORDERS),
+)
 _KNOWN_FORMATS = (
     "S<order>{8,10,12,14,16}, S<order>{10,12,14}_CSI2P or <order>_PISP_COMP1 with <order> RGGB, GRBG, GBRG or BGGR"
 )
@@ -64,6 +82,87 @@ _METADATA_SCALARS = {  # libcamera control -> (RawImage metadata key, scale)
     "Lux": ("lux", 1.0),
 }
 _METADATA_VECTORS = {"ColourGains": ("colour_gains", 2), "ColourCorrectionMatrix": ("colour_correction_matrix", 9)}
+
+
+@dataclass(frozen=True)
+class RawFormat:
+    """What a libcamera raw format name says about the bytes (:func:`parse_raw_format`).
+
+    Attributes
+    ----------
+    name : str
+        The name as libcamera spells it (``"SBGGR10_CSI2P"``).
+    pattern : str
+        Bayer order of the top-left 2x2 block.
+    packing : str
+        ``"unpacked"``, ``"csi2p"`` or ``"pisp"``.
+    bits : int
+        Bits per stored sample (16 for PiSP compression: it decompresses to a 16-bit scale).
+    """
+
+    name: str
+    pattern: str
+    packing: str
+    bits: int
+
+    def row_bytes(self, width: int) -> int:
+        """Bytes of pixel data in a row of ``width`` pixels, before any stride padding.
+
+        Examples
+        --------
+        >>> parse_raw_format("SBGGR10_CSI2P").row_bytes(3280), parse_raw_format("SRGGB16").row_bytes(3280)
+        (4100, 6560)
+        """
+        if self.packing == "pisp":
+            return -(-width // 8) * 8  # each 8-pixel block is 8 bytes; rows are padded to whole blocks
+        if self.packing == "csi2p":
+            return -(-width // 4) * 7 if self.bits == 14 else packed_row_bytes(width, self.bits)
+        return width if self.bits == 8 else 2 * width
+
+
+def parse_raw_format(name: str, source: str | os.PathLike[str] | None = None) -> RawFormat:
+    """The layout a libcamera raw format name stands for (case-insensitive).
+
+    Parameters
+    ----------
+    name : str
+        ``S<order><8|10|12|14|16>`` (unpacked), ``S<order><10|12|14>_CSI2P`` (MIPI CSI-2 packed) or
+        ``<order>_PISP_COMP1`` (the Pi 5's compressed format), ``<order>`` one of RGGB, GRBG, GBRG, BGGR.
+    source : str or path-like, optional
+        The file the name is for, named in errors.
+
+    Raises
+    ------
+    RawFormatError
+        A greyscale format (``R10_CSI2P``, ...: picamcal calibrates colour Bayer sensors), or a name it does not
+        know (the message lists the known ones and the nearest).
+
+    Examples
+    --------
+    >>> parse_raw_format("sbggr10_csi2p")
+    RawFormat(name='SBGGR10_CSI2P', pattern='BGGR', packing='csi2p', bits=10)
+    """
+    key = name.strip().upper()
+    if match := _UNCOMPRESSED.fullmatch(key):
+        bits, packing = int(match[2]), "csi2p" if match[3] else "unpacked"
+        if packing == "unpacked" or bits in (10, 12, 14):
+            return RawFormat(key, match[1], packing, bits)
+    elif match := _PISP.fullmatch(key):
+        return RawFormat(f"{match[1]}_PISP_COMP1", match[1], "pisp", 16)
+    elif _MONO.fullmatch(key):
+        raise RawFormatError(
+            f"{name} is a monochrome (greyscale) format: picamcal calibrates colour Bayer sensors, and a "
+            "monochrome sensor has no colour crosstalk to unmix (a colour sensor's format is S<order>...)",
+            source,
+        )
+    raise RawFormatError(f"unknown raw format {name!r} (expected {_KNOWN_FORMATS}){_nearest_format(key)}", source)
+
+
+def _nearest_format(key: str) -> str:
+    if match := re.fullmatch(rf"S({'|'.join(_ORDERS)})(10|12|14)P", key):  # V4L2's name of a packed format
+        return f"; did you mean S{match[1]}{match[2]}_CSI2P?"
+    close = difflib.get_close_matches(key, RAW_FORMATS, n=1, cutoff=0.75)
+    return f"; did you mean {close[0]}?" if close else ""
 
 
 @dataclass(frozen=True)
@@ -116,7 +215,8 @@ def from_picamera2(
     -------
     RawImage
         The mosaic at the sensor's bit depth, its pattern (from the format string, flips included), per-site black
-        levels (``SensorBlackLevels``, else the sensor registry's, else 0 with a warning) and white level.
+        levels (``SensorBlackLevels``, else the sensor registry's, else NaN: unknown, an error where a black level
+        is needed) and white level.
 
     Raises
     ------
@@ -165,7 +265,7 @@ def from_picamera2(
     meta.update(_exposure_metadata(metadata, source))
     levels = _sensor_black_levels(metadata, source)
     bayer, bit_depth, white = _decode(layout, source)
-    black, meta["black_level_source"] = _black_levels(levels, layout.pattern, bit_depth, name, source)
+    black, meta["black_level_source"] = _black_levels(levels, layout.pattern, bit_depth, name)
     try:
         return RawImage(bayer, layout.pattern, black, white, bit_depth, name, meta)
     except RawFormatError as exc:
@@ -175,8 +275,9 @@ def from_picamera2(
 def to_picamera2(raw: RawImage, *, packed: bool = True, align: int = 32) -> tuple[np.ndarray, dict, dict]:
     """The buffer, configuration and metadata picamera2 would give for ``raw``: the inverse of :func:`from_picamera2`.
 
-    Packed ``S<order><bits>_CSI2P`` for 10 and 12 bits (unpacked ``S<order><bits>`` otherwise), rows
-    padded to ``align`` bytes (32 on a Pi 4, 64 on a Pi 5), ``SensorBlackLevels`` on the 16-bit scale.
+    Packed ``S<order><bits>_CSI2P`` for 10 and 12 bits (unpacked ``S<order><bits>`` otherwise: one byte per pixel
+    at 8 bits, else little-endian uint16), rows padded to ``align`` bytes (32 on a Pi 4, 64 on a Pi 5),
+    ``SensorBlackLevels`` on the 16-bit scale (left out when the black level is unknown).
 
     Examples
     --------
@@ -186,13 +287,14 @@ def to_picamera2(raw: RawImage, *, packed: bool = True, align: int = 32) -> tupl
     """
     bits = raw.bit_depth
     packed = packed and bits in (10, 12)
-    row_bytes = packed_row_bytes(raw.width, bits) if packed else 2 * raw.width
+    row_bytes = packed_row_bytes(raw.width, bits) if packed else raw.width if bits == 8 else 2 * raw.width
     stride = -(-row_bytes // align) * align
     if packed:
         array = pack(raw.bayer, bits, stride)
     else:
         array = np.zeros((raw.height, stride), dtype=np.uint8)
-        array[:, :row_bytes] = raw.bayer.astype("<u2").view(np.uint8).reshape(raw.height, -1)
+        samples = raw.bayer.astype(np.uint8) if bits == 8 else raw.bayer.astype("<u2").view(np.uint8)
+        array[:, :row_bytes] = samples.reshape(raw.height, -1)
     names = [c if c != "G" else ("Gr" if raw.pattern[site ^ 1] == "R" else "Gb") for site, c in enumerate(raw.pattern)]
     by_name = dict(zip(names, raw.black_level, strict=True))
     scale = 2.0 ** (16 - bits)
@@ -206,7 +308,9 @@ def to_picamera2(raw: RawImage, *, packed: bool = True, align: int = 32) -> tupl
         "sensor": {"bit_depth": bits, "output_size": (raw.width, raw.height)},
         "model": raw.sensor,
     }
-    metadata: dict[str, Any] = {"SensorBlackLevels": [round(by_name[n] * scale) for n in ("R", "Gr", "Gb", "B")]}
+    metadata: dict[str, Any] = {}
+    if all(math.isfinite(b) for b in raw.black_level):  # an unknown (NaN) black level stays unknown
+        metadata["SensorBlackLevels"] = [round(by_name[n] * scale) for n in ("R", "Gr", "Gb", "B")]
     if raw.metadata.get("exposure_time_s"):
         metadata["ExposureTime"] = round(1e6 * float(raw.metadata["exposure_time_s"]))
     if raw.metadata.get("analogue_gain"):
@@ -418,14 +522,7 @@ def _layout(array: Any, config: Any, source: str) -> _Layout:
     fmt = stream["format"]
     if not isinstance(fmt, str):
         raise RawFormatError(f"the raw format must be a string such as 'SBGGR10_CSI2P', not {_short(fmt)}", source)
-    if match := _UNCOMPRESSED.fullmatch(fmt):
-        pattern, bits, packing = match[1], int(match[2]), "csi2p" if match[3] else "unpacked"
-        if packing == "csi2p" and bits not in (10, 12, 14):
-            raise RawFormatError(f"unknown raw format {fmt!r} (expected {_KNOWN_FORMATS})", source)
-    elif match := _PISP.fullmatch(fmt):
-        pattern, bits, packing = match[1], 16, "pisp"
-    else:
-        raise RawFormatError(f"unknown raw format {fmt!r} (expected {_KNOWN_FORMATS})", source)
+    spec = parse_raw_format(fmt, source)
 
     size = stream.get("size")
     if not isinstance(size, (tuple, list)) or len(size) != 2:
@@ -440,16 +537,10 @@ def _layout(array: Any, config: Any, source: str) -> _Layout:
         if not 8 <= sensor_bits <= 16:
             raise RawFormatError(f"a sensor bit_depth of {sensor_bits} is not between 8 and 16", source)
 
-    if packing == "pisp":
-        row_bytes = -(-width // 8) * 8  # each 8-pixel block is 8 bytes; rows are padded to whole blocks
-    elif packing == "csi2p":
-        row_bytes = -(-width // 4) * 7 if bits == 14 else packed_row_bytes(width, bits)
-    else:
-        row_bytes = width if bits == 8 else 2 * width
-    what = "PiSP-compressed" if packing == "pisp" else f"{bits} bits"
-    rows = _rows(array, stream, height, row_bytes, f"{width} pixels at {what}", source)
+    what = "PiSP-compressed" if spec.packing == "pisp" else f"{spec.bits} bits"
+    rows = _rows(array, stream, height, spec.row_bytes(width), f"{width} pixels at {what}", source)
     stride = rows.shape[1]
-    return _Layout(fmt, pattern, packing, bits, width, height, stride, sensor_bits, rows)
+    return _Layout(spec.name, spec.pattern, spec.packing, spec.bits, width, height, stride, sensor_bits, rows)
 
 
 def _buffer_array(array: Any) -> np.ndarray:
@@ -629,7 +720,7 @@ def _sensor_black_levels(metadata: Mapping[str, Any], source: str) -> list[float
 
 
 def _black_levels(
-    levels: list[float] | None, pattern: str, bit_depth: int, sensor: str | None, source: str
+    levels: list[float] | None, pattern: str, bit_depth: int, sensor: str | None
 ) -> tuple[tuple[float, float, float, float], str]:
     """Per-site black levels at ``bit_depth`` bits, and where they came from."""
     if levels is not None:
@@ -640,12 +731,8 @@ def _black_levels(
         return tuple(by_name[n] * scale for n in names), "SensorBlackLevels"  # type: ignore[return-value]
     if sensor is not None:
         return (black_level_at(get_sensor(sensor), bit_depth),) * 4, "registry"
-    warnings.warn(
-        f"{source}: no SensorBlackLevels in the metadata and no known sensor; black level taken as 0",
-        PicamcalWarning,
-        stacklevel=3,
-    )
-    return (0.0,) * 4, "none"
+    # Unknown, not 0: the error comes where a black level is needed (picamcal.raw.model.require_black_level).
+    return (math.nan,) * 4, "none"
 
 
 def _number(value: Any, key: str, source: str) -> float:
@@ -684,6 +771,7 @@ def _resolve_sensor(
         if not isinstance(sensor, str):
             raise RawFormatError(f"sensor must be a name such as 'imx219', not {_short(sensor)}", source)
         name = find_sensor_name(sensor)
+        require_colour_sensor(name, source)
         if name is None and warn:
             warnings.warn(
                 f"{source}: sensor {sensor!r} is not in picamcal's registry; its constants are unknown",
@@ -695,8 +783,25 @@ def _resolve_sensor(
         for key in ("model", "Model"):
             text = holder.get(key)
             if isinstance(text, str) and text:
-                return find_sensor_name(text), text
+                name = find_sensor_name(text)
+                require_colour_sensor(name, source)
+                return name, text
     return None, None
+
+
+def require_colour_sensor(name: str | None, source: str | os.PathLike[str]) -> None:
+    """Raise if the registry knows ``name`` as a monochrome sensor: there is no colour to calibrate.
+
+    Examples
+    --------
+    >>> require_colour_sensor("imx219", "white.raw")
+    """
+    if name is not None and get_sensor(name).monochrome:
+        raise RawFormatError(
+            f"the {name.upper()} is a monochrome sensor: picamcal calibrates colour Bayer sensors, and a monochrome "
+            "sensor has no colour crosstalk to unmix",
+            source,
+        )
 
 
 def _jsonable(value: Any) -> Any:

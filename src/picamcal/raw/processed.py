@@ -107,10 +107,11 @@ def linearise(values: np.ndarray, encoding: str) -> np.ndarray:
     --------
     >>> float(linearise(np.array(0.5), "gamma:2.0"))
     0.25
-    >>> round(float(linearise(np.array(0.5), "srgb")), 4)
+    >>> round(float(linearise(np.array(0.5), "sRGB")), 4)
     0.214
     """
     kind, _, arg = encoding.partition(":")
+    kind = kind.strip().lower()  # sRGB, Linear, GAMMA:2.2 are what users type; a tuning file's name keeps its case
     values = np.asarray(values, dtype=np.float32)
     if kind == "srgb" and not arg:
         return _srgb_to_linear(values).astype(np.float32)
@@ -127,7 +128,11 @@ def linearise(values: np.ndarray, encoding: str) -> np.ndarray:
     if kind == "tuning" and arg:
         linear, encoded = tuning_gamma_curve(arg)
         return np.interp(values, encoded, linear).astype(np.float32)
-    raise PicamcalError(f"unknown input encoding {encoding!r}: use srgb, linear, gamma:G or tuning:FILE")
+    import difflib
+
+    close = difflib.get_close_matches(kind, ["srgb", "linear", "gamma", "tuning"], n=1, cutoff=0.6)
+    hint = f" (did you mean {close[0]}{':...' if close[0] in ('gamma', 'tuning') else ''}?)" if close else ""
+    raise PicamcalError(f"unknown input encoding {encoding!r}{hint}: use srgb, linear, gamma:G or tuning:FILE")
 
 
 def _read_png16(path: Path) -> np.ndarray:
@@ -162,6 +167,27 @@ def _exif(image: Any) -> dict[str, Any]:
     return meta
 
 
+def _refuse_raw(path: Path, head: bytes) -> None:
+    """A raw image given as processed: say so, rather than decode a DNG's preview or a mosaic as colours."""
+    what = None
+    if head[:6] == b"\x93NUMPY":
+        what = "a raw buffer (.npy)"
+    elif head.startswith(b"PK"):
+        from .npz import is_raw_npz
+
+        what = "a picamcal raw image (.npz)" if is_raw_npz(path) else None
+    elif head[:4] in (b"II*\x00", b"MM\x00*"):
+        import tifffile
+
+        try:
+            with tifffile.TiffFile(path) as tif:
+                what = "a DNG raw image" if 50706 in tif.pages.first.tags else None  # DNGVersion
+        except Exception:  # a broken TIFF is for the decoder below to report
+            what = None
+    if what is not None:
+        raise RawFormatError(f"{what}, not a processed one: leave out --processed", path)
+
+
 def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> ProcessedImage:
     """Read a processed image as linear RGB.
 
@@ -179,6 +205,7 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     """
     path = Path(path)
     head = file_head(path)
+    _refuse_raw(path, head)
     meta: dict[str, Any] = {"path": str(path)}
     try:
         if head[:4] in (b"II*\x00", b"MM\x00*"):

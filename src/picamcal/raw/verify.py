@@ -32,7 +32,8 @@ def site_disagreement(raw: RawImage, max_rows: int = 256) -> tuple[float, float]
     """
     step = max(1, raw.height // 2 // max_rows)
     blocks = raw.bayer.reshape(raw.height // 2, 2, raw.width // 2, 2)[::step].astype(np.float32)
-    black = np.asarray(raw.black_level, dtype=np.float32).reshape(2, 2)
+    # An unknown (NaN) black level is taken as 0 here: the two greens still agree far better than other sites.
+    black = np.nan_to_num(np.asarray(raw.black_level, dtype=np.float32), nan=0.0).reshape(2, 2)
     sites = [blocks[:, sy, :, sx] - black[sy, sx] for sy in (0, 1) for sx in (0, 1)]
     out = []
     for a, b in _DIAGONALS:
@@ -43,6 +44,9 @@ def site_disagreement(raw: RawImage, max_rows: int = 256) -> tuple[float, float]
 
 def check_metadata(raw: RawImage) -> list[str]:
     """Problems found by comparing a raw image's declared pattern and black level with its data.
+
+    The black-level check applies to every registry sensor: a file that declares 0 while the registry's level is
+    above its darkest pixels. An unknown (NaN) black level is not checked here.
 
     Returns
     -------
@@ -65,7 +69,8 @@ def check_metadata(raw: RawImage) -> list[str]:
             f"{said} Bayer order {raw.pattern}, but the greens sit on the other diagonal (the sites it calls green "
             f"differ by {100 * d[green]:.1f} %, the other pair by {100 * d[other]:.1f} %): pass --pattern {candidates}"
         )
-    sensor = SENSORS.get(raw.sensor or "")
+    sensor = SENSORS.get((raw.sensor or "").lower())
+    # A zero black level where the registry knows better; an unknown (NaN) one is require_black_level's to report.
     if sensor is not None and not any(raw.black_level):
         expected = black_level_at(sensor, raw.bit_depth)
         low = float(np.percentile(raw.bayer[::8, ::8], 0.1))

@@ -19,7 +19,7 @@ from typing import Any
 
 from .._files import json_default
 from .._version import __version__
-from ..calibration import MODES, Calibration
+from ..calibration import Calibration
 from ..errors import OutputError
 from ..raw import RawImage, read_raw
 
@@ -31,6 +31,7 @@ th { background: #f3f3f3; text-align: left; } td.num { text-align: right; font-v
 .pass { color: #1a7f37; font-weight: bold; } .warn { color: #b35900; font-weight: bold; }
 figure { margin: 1.5em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { color: #555; font-size: .92em; } code { background: #f5f5f5; padding: 0 .2em; }
+.note { background: #f6f8fa; border-left: 4px solid #888; padding: .5em .8em; }
 """
 
 #: After the page has loaded, record how many images rendered (the browser test reads it from the DOM).
@@ -72,6 +73,16 @@ _FIGURES = (
     ),
     ("dust_map", "Dust and dirt", "Small-scale structure in the white reference; circles mark what was found."),
 )
+#: The figures about the colour unmixing, which a flat-field calibration (white only) does not have.
+_UNMIXING_FIGURES = ("unmixing_grid",)
+#: Why a flat-field calibration's report leaves the unmixing checks and figures out, and how to get them.
+_FLAT_NOTE = (
+    "This is a flat-field calibration, from a white reference alone: it corrects vignetting and colour balance "
+    "(modes balance and flat) and has no colour unmixing. The checks and figures about the unmixing (conditioning, "
+    "noise penalty of unmixing, smoothness of the unmixing field, the unmixing field itself) are left out because "
+    "there is nothing to check. For colour unmixing, calibrate with red, green and blue references too, or combine "
+    "this white with a jig calibration (picamcal calibrate --white WHITE --unmixing-from JIG.npz)."
+)
 
 
 def _esc(value: Any) -> str:
@@ -103,6 +114,12 @@ def _figures(cal: Calibration, folder: Path, step: Callable[[str], None]) -> lis
 
     made = []
     for name, title, caption in _FIGURES:
+        if name in _UNMIXING_FIGURES and not cal.has_unmixing:
+            continue
+        if name == "noise_penalty_maps" and not cal.has_unmixing:
+            caption = "Factor by which the vignetting correction multiplies read noise."
+        if name == "normalised_references" and not cal.has_unmixing:
+            caption = "The white reference normalised to its centre, with R, G, B sections through the centre."
         step(f"figure: {title.lower()}")
         getattr(figures, name)(cal, folder / f"{name}.png")
         made.append((f"{name}.png", title, caption))
@@ -117,7 +134,7 @@ def _test_image_section(
     from ..metrics import save_preview
 
     stem = f"test{index}"
-    images = {mode: correct(raw, cal, mode) for mode in MODES}
+    images = {mode: correct(raw, cal, mode) for mode in cal.modes}
     found = find_wheels(images["balance"], layout=layout)
     result = analyse(images, found)
     parts = [
@@ -125,7 +142,7 @@ def _test_image_section(
         "<table><tr><th>mode</th><th>corner CIEDE2000 max</th>"
         "<th>CIEDE2000 mean</th><th>saturation vs centre</th></tr>",
     ]
-    for mode in MODES:
+    for mode in cal.modes:
         summary = result[mode]["summary"] if "summary" in result[mode] else result[mode]
         parts.append(
             f"<tr><td>{mode}</td><td class='num'>{summary['max_delta_e']:.2f}</td>"
@@ -133,7 +150,7 @@ def _test_image_section(
             f"<td class='num'>{summary['mean_saturation_ratio']:.2f}</td></tr>"
         )
     parts.append("</table>")
-    for mode in ("balance", "flat", "centre"):
+    for mode in (m for m in ("balance", "flat", "centre") if m in cal.modes):
         save_preview(folder / f"{stem}_{mode}.png", images[mode], max_size=900)
         polar_plot(result[mode], folder / f"{stem}_{mode}_polar.png", title=f"{mode}: hue and saturation")
         wheel_crops(images[mode], found, folder / f"{stem}_{mode}_wheels.png")
@@ -164,7 +181,8 @@ def write_report(
     out_dir : path
         The report folder; refused if it exists and is not empty, unless ``overwrite``.
     test_images : raw images or paths
-        Images of a colour-wheel target to show before and after correction, with polar plots.
+        Images of a colour-wheel target to show before and after correction, with polar plots, in every mode
+        the calibration has (``balance`` and ``flat`` for a flat-field calibration).
     layout : dict, optional
         The target's layout (``picamcal target``); without it the wheels are found in the image.
     cra_corner_deg : float, optional
@@ -219,13 +237,23 @@ def _percent(fraction: float | None, decimals: int) -> str:
     return "&ndash;" if fraction is None else f"{100 * fraction:.{decimals}f} %"
 
 
+def _frames_cell(info: dict) -> str:
+    """The checksum of a single-frame reference, or the count and temporal noise of averaged frames."""
+    if info.get("frame_count", 1) > 1:
+        return (
+            f"{info['frame_count']} frames: temporal noise {info['temporal_noise_dn']:.2f} DN per pixel in one, "
+            f"{info['averaged_noise_dn']:.2f} DN in their average"
+        )
+    return f"<code>{_esc(info['sha256'][:16])}</code>" if info.get("sha256") else "&ndash;"
+
+
 def _page(cal: Calibration, checks: list[dict], figures: list[tuple[str, str, str]], tests: list[str]) -> str:
     meta = cal.meta
     inputs = "".join(
         f"<tr><td>{_esc(i['role'])}</td><td><code>{_esc(i.get('name', ''))}</code></td><td>{_esc(i['format'])}</td>"
         f"<td class='num'>{_percent(i.get('median_fraction'), 1)}</td>"
         f"<td class='num'>{_percent(i.get('clipped_fraction'), 3)}</td>"
-        f"<td><code>{_esc(str(i.get('sha256', ''))[:16])}</code></td></tr>"
+        f"<td>{_frames_cell(i)}</td></tr>"
         for i in meta.get("inputs", [])
     )
     verdicts = "".join(
@@ -240,24 +268,34 @@ def _page(cal: Calibration, checks: list[dict], figures: list[tuple[str, str, st
         for src, title, caption in figures
     )
     test_html = "<h2>Test images</h2>" + "".join(tests) if tests else ""
-    penalty = float(cal.noise_penalty("centre").max())
+    if cal.has_unmixing:
+        kind = "Flat-field and colour-crosstalk calibration"
+        worst = float(cal.noise_penalty("centre").max())
+        penalty = f"Worst noise penalty of the recommended (centre) correction: {worst:.2f}."
+        note = ""
+    else:
+        kind = "Flat-field calibration (white reference only)"
+        penalty = f"Worst noise penalty of the flat-field correction: {cal.noise_penalty('flat').max():.2f}."
+        note = f"<p class='note'>{_esc(_FLAT_NOTE)}</p>"
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <title>picamcal report: {_esc(cal.sensor or "camera")} {cal.width}x{cal.height}</title>
 <style>{_CSS}</style></head>
 <body>
 <h1>Calibration report: {_esc((cal.sensor or "unknown sensor").upper())}, {cal.width} x {cal.height}</h1>
-<p>Flat-field and colour-crosstalk calibration after Bowman, Vodenicharski, Collins and Stirling, <i>Flat-field and
+<p>{kind} after Bowman, Vodenicharski, Collins and Stirling, <i>Flat-field and
 colour correction for the Raspberry Pi camera module</i>. Bayer order {_esc(cal.pattern)}, {cal.white.shape[1]} x
 {cal.white.shape[0]} bins of {cal.bin_size} pixels, smoothing {_esc(meta.get("smoothing", 0))} bins, created
 {_esc(meta.get("created", "?"))} with picamcal {_esc(meta.get("software_version", "?"))}; report written
 {datetime.now(timezone.utc).isoformat(timespec="seconds")} with picamcal {__version__}.
-Worst noise penalty of the recommended (centre) correction: {penalty:.2f}.</p>
+{penalty}</p>
+{note}
 <h2>Verdicts</h2>
 <p>{len(checks) - warned} of {len(checks)} checks pass{"" if not warned else f"; {warned} need a look"}.</p>
 <table><tr><th>check</th><th>verdict</th><th>what was measured</th></tr>{verdicts}</table>
 <h2>Reference images</h2>
-<table><tr><th>role</th><th>file</th><th>format</th><th>median exposure</th><th>clipped</th><th>sha256</th></tr>
+<table><tr><th>role</th><th>file</th><th>format</th><th>median exposure</th><th>clipped</th>
+<th>sha256, or frames averaged</th></tr>
 {inputs}</table>
 <h2>Diagnostics</h2>
 {figure_html}
