@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 import tracemalloc
 import warnings
 from pathlib import Path
@@ -22,6 +20,7 @@ from picamcal.raw.headless import default_strides, read_headless
 from picamcal.raw.model import PATTERNS, require_black_level
 from picamcal.raw.packing import pack
 from picamcal.raw.picamera2 import RAW_FORMATS, from_picamera2, parse_raw_format
+from test_cli import assert_bad_input, run
 
 # (format suffix, bits): every layout libcamera's raw streams use for Bayer data.
 PACKINGS = [("_CSI2P", 10), ("_CSI2P", 12), ("_CSI2P", 14), ("", 8), ("", 10), ("", 12), ("", 16)]
@@ -321,24 +320,6 @@ def test_read_headless_is_what_read_raw_calls(tmp_path):
 
 
 # --- the command line ---------------------------------------------------------------------------------------
-
-
-def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", "from picamcal.cli import main; main()", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-
-
-def assert_bad_input(result: subprocess.CompletedProcess, *fragments: str) -> None:
-    assert result.returncode == 2, result.stdout + result.stderr
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1, result.stderr  # one line, no traceback
-    assert lines[0].startswith("picamcal: error: ")
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -37,6 +37,7 @@ from picamcal.output import (
     write_rgb_tiff,
 )
 from picamcal.raw.picamera2 import to_picamera2, write_picamera2_npy
+from test_cli import assert_bad_input, run
 
 ROOT = Path(__file__).resolve().parents[1]
 TUNING = ROOT.parent / "shared" / "data" / "libcamera-tuning" / "pisp" / "imx219.json"
@@ -283,21 +284,6 @@ def test_the_tuning_file_comes_first_at_the_images_colour_temperature():
 
 
 # ---------------------------------------------------------------------------------------------- the CLI
-def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", "from picamcal.cli import main; main()", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-
-
-def assert_one_line_error(result: subprocess.CompletedProcess, *fragments: str) -> None:
-    assert result.returncode == 2, result.stdout + result.stderr
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("picamcal: error: "), result.stderr
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -351,17 +337,17 @@ def test_correct_writes_each_format_skips_on_rerun_and_overwrites(run_dir, tmp_p
 def test_bad_output_combinations_are_one_line_and_write_nothing(run_dir, tmp_path):
     cal, target = str(run_dir / "cal.npz"), str(run_dir / "sim" / "target.dng")
     result = run("correct", cal, target, "--zarr", str(tmp_path / "s.zarr"), "--output-format", "srgb-png")
-    assert_one_line_error(result, "zarr stack holds float32 only", "srgb-png")
+    assert_bad_input(result, "zarr stack holds float32 only", "srgb-png")
     result = run("correct", cal, target, "--out", str(tmp_path / "o"), "--output-format", "srgb-png",
                  "--compression", "zstd")  # fmt: skip
-    assert_one_line_error(result, "compression zstd is for the TIFF formats", "srgb-png")
+    assert_bad_input(result, "compression zstd is for the TIFF formats", "srgb-png")
     result = run("correct", cal, target, "--out", str(tmp_path / "o"), "--tuning", str(TUNING))
-    assert_one_line_error(result, "--tuning", "srgb-png")
+    assert_bad_input(result, "--tuning", "srgb-png")
     result = run("correct", cal, target, "--out", str(tmp_path / "o"), "--tuning", str(TUNING),
                  "--output-format", "srgb-png", "--mode", "pure")  # fmt: skip
-    assert_one_line_error(result, "mode pure", str(TUNING))
+    assert_bad_input(result, "mode pure", str(TUNING))
     result = run("correct", cal, target, "--out", str(tmp_path / "o"), "--output-format", "srgb-pgn")
-    assert_one_line_error(result, "did you mean srgb-png")
+    assert_bad_input(result, "did you mean srgb-png")
     assert list(tmp_path.iterdir()) == []
 
 
