@@ -221,7 +221,7 @@ def test_corrupt_calibration(sim, tmp_path):
 def test_refuses_to_overwrite_calibration_or_an_input(sim, cal_path, tmp_path):
     assert_bad_input(run("calibrate", str(sim), "--out", str(cal_path)), "exists already")
     result = run("calibrate", str(sim), "--out", str(sim / "white.dng"), "--overwrite")
-    assert_bad_input(result, "white.dng", "is one of the input files")
+    assert_bad_input(result, "white.dng", "is an input of this command")
 
 
 def test_folder_without_references(tmp_path):

@@ -328,10 +328,13 @@ def test_correct_writes_each_format_skips_on_rerun_and_overwrites(run_dir, tmp_p
     again = run(*args, "--output-format", output_format, "--workers", "0")
     assert again.returncode == 0 and "skipped 2" in again.stderr, again.stderr  # the console is stderr
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
-    (out / f"target{suffix}").write_bytes(b"stale")
     forced = run(*args, "--output-format", output_format, "--workers", "0", "--overwrite")
     assert forced.returncode == 0 and "wrote 2" in forced.stderr, forced.stderr
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # the same bytes as the first run
+    (out / f"target{suffix}").write_bytes(b"somebody else's file")  # not picamcal's: --overwrite leaves it alone
+    refused = run(*args, "--output-format", output_format, "--workers", "0", "--overwrite")
+    assert_bad_input(refused, f"target{suffix}", "picamcal wrote")
+    assert (out / f"target{suffix}").read_bytes() == b"somebody else's file"
 
 
 def test_bad_output_combinations_are_one_line_and_write_nothing(run_dir, tmp_path):

@@ -113,9 +113,9 @@ def test_report_cli_refuses_a_folder_that_is_not_empty(run_files, tmp_path):
     (out / "notes.txt").write_text("mine")
     assert_bad_input(run("report", str(folder / "cal.npz"), "--out", str(out)), "not empty")
     assert (out / "notes.txt").read_text() == "mine"
-    result = run("report", str(folder / "cal.npz"), "--out", str(out), "--overwrite")
-    assert result.returncode == 0, result.stderr
-    assert (out / "index.html").exists() and not (out / "notes.txt").exists()
+    # --overwrite replaces only a report picamcal wrote, never a folder of someone's own files.
+    assert_bad_input(run("report", str(folder / "cal.npz"), "--out", str(out), "--overwrite"), "not a picamcal report")
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
 
 
 def test_target_command_writes_png_pdf_and_layout(tmp_path):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from .errors import OutputError
@@ -39,3 +39,51 @@ def atomic_path(path: str | os.PathLike[str], overwrite: bool = True) -> Iterato
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def refuse_inputs_as_output(output: str | os.PathLike[str], inputs: Iterable[str | os.PathLike[str] | None]) -> None:
+    """Raise OutputError if ``output`` is, contains or lies inside one of ``inputs`` (None entries are skipped).
+
+    Writing there could replace or delete what the command reads (``--out`` given the calibration, or the
+    folder of captures), so no command does it, ``--overwrite`` or not.
+
+    Examples
+    --------
+    >>> refuse_inputs_as_output("report", ["cal.npz", "captures/target.dng"])
+    >>> refuse_inputs_as_output("captures", ["captures/target.dng"])
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.OutputError: captures: holds the input captures/target.dng; choose another output
+    """
+    out = Path(output).absolute().resolve()
+    for item in inputs:
+        if item is None:
+            continue
+        source = Path(item).absolute().resolve()
+        if out == source:
+            raise OutputError("is an input of this command; choose another output", output)
+        if source.is_relative_to(out):
+            raise OutputError(f"holds the input {item}; choose another output", output)
+        if out.is_relative_to(source):
+            raise OutputError(f"lies inside the input {item}; choose another output", output)
+
+
+def refuse_foreign(path: str | os.PathLike[str], is_own: Callable[[Path], bool], what: str) -> None:
+    """Raise OutputError if ``path`` exists and is not ``what`` picamcal wrote: ``--overwrite`` replaces only those.
+
+    Examples
+    --------
+    >>> refuse_foreign("cal.npz", lambda p: p.suffix == ".npz", "a picamcal calibration")
+    """
+    target = Path(path)
+    if (target.exists() or target.is_symlink()) and not _is_own(target, is_own):
+        raise OutputError(
+            f"exists and is not {what}: picamcal replaces only what it wrote itself; choose another output", target
+        )
+
+
+def _is_own(path: Path, is_own: Callable[[Path], bool]) -> bool:
+    try:
+        return path.is_file() and not path.is_symlink() and bool(is_own(path))
+    except Exception:  # whatever the bytes: a file the check cannot read is not one of ours
+        return False

@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from ._atomic import refuse_foreign, refuse_inputs_as_output
 from ._files import sha256_file
 from .calibration import MODES, Calibration, load_calibration
 from .correct import correct, correct_processed
@@ -59,6 +60,7 @@ from .output import (
     TIFF_FORMATS,
     ColourMatrix,
     camera_to_srgb,
+    is_picamcal_output,
     output_bytes,
     write_corrected,
 )
@@ -403,8 +405,13 @@ def run_batch(
     )
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
+    inputs = list(inputs)
+    items = [item for item in inputs if not _GLOB_CHARS.search(str(item))]
     sources = expand_inputs(
         inputs, PROCESSED_SUFFIXES if processed else HEADLESS_SUFFIXES if raw_format is not None else RAW_SUFFIXES
+    )
+    refuse_inputs_as_output(
+        Path(zarr_path if zarr_path is not None else out_dir), [calibration_path, white, tuning, *items, *sources]
     )
     if mosaic is not None and len(sources) > mosaic[0] * mosaic[1]:
         raise PicamcalError(f"{len(sources)} frames do not fit a mosaic of {mosaic[0]} x {mosaic[1]} tiles")
@@ -483,6 +490,7 @@ def _plan_tiffs(
         if target.exists() and not overwrite:
             skipped.append(source)
         else:
+            refuse_foreign(target, is_picamcal_output, "an image picamcal wrote")
             jobs.append(_Job(index, str(source.absolute()), str(target.absolute())))
     return jobs, skipped
 

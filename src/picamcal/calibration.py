@@ -376,3 +376,18 @@ def _validate(arrays: dict[str, np.ndarray], meta: dict[str, Any], path: Path) -
     extra = sorted(set(arrays) & (set(ARRAYS) | set(GLOBAL_ARRAYS)) - set(expected))
     if extra:
         raise CalibrationFileError(f"a {kind} calibration holds {', '.join(map(repr, extra))}: inconsistent", path)
+
+
+def is_calibration_file(path: str | os.PathLike[str]) -> bool:
+    """True if ``path`` is a picamcal calibration that loads: a file ``overwrite`` may replace.
+
+    Examples
+    --------
+    >>> is_calibration_file("cal.npz")  # doctest: +SKIP
+    True
+    """
+    try:
+        load_calibration(path)
+    except CalibrationFileError:
+        return False
+    return True

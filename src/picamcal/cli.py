@@ -18,7 +18,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from ._atomic import atomic_path
+from ._atomic import atomic_path, refuse_foreign, refuse_inputs_as_output
 from ._version import __version__
 from .errors import OutputError, PicamcalError, PicamcalWarning
 
@@ -145,13 +145,6 @@ def _root(
     """Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics."""
 
 
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        return a.resolve() == b.resolve()
-    except OSError:
-        return False
-
-
 @app.command("calibrate")
 def calibrate_cmd(
     folder: Annotated[
@@ -194,6 +187,7 @@ def calibrate_cmd(
     """
     from .analysis.diagnostics import diagnose
     from .calibrate import calibrate, calibrate_in_situ
+    from .calibration import is_calibration_file
     from .references import COLOURS, find_references
 
     named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
@@ -207,11 +201,11 @@ def calibrate_cmd(
     if 0 < len(colours) < 3:
         missing = " and ".join(f"--{role}" for role in COLOURS if role not in refs)
         raise typer.BadParameter(f"give {missing} too, or no colour references for a flat field (white only)")
+    paths = [p for ref in refs.values() for p in (ref if isinstance(ref, list) else [ref])]
+    refuse_inputs_as_output(out, [*paths, unmixing_from, folder])
     if out.exists() and not overwrite:
         raise OutputError("exists already (use --overwrite to replace it)", out)
-    paths = [p for ref in refs.values() for p in (ref if isinstance(ref, list) else [ref])]
-    if any(_same_file(out, p) for p in [*paths, *([unmixing_from] if unmixing_from else [])]):
-        raise OutputError("is one of the input files; choose another --out", out)
+    refuse_foreign(out, is_calibration_file, "a picamcal calibration")
     read = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
 
     def frames(role: str) -> Any:  # several frames are read one at a time, as the calibration averages them
@@ -507,6 +501,7 @@ def export_tuning_cmd(
         TARGET_NAMES,
         check_tuning,
         export_tuning,
+        is_tuning_file,
         load_tuning,
         save_tuning,
         sensor_of_tuning_file,
@@ -532,11 +527,12 @@ def export_tuning_cmd(
             out / f"{cal.sensor or sensor_of_tuning_file(path)}_{label[check_tuning(tuning)]}.json"
             for path, tuning in zip(bases, tunings, strict=True)
         ]
-    for path, base_path in zip(outputs, bases, strict=True):
+    for path in {out, *outputs}:
+        refuse_inputs_as_output(path, [*bases, calibration])
+    for path in outputs:
         if path.exists() and not overwrite:
             raise OutputError("exists already (use --overwrite to replace it)", path)
-        if _same_file(path, base_path) or _same_file(path, calibration):
-            raise OutputError("would replace an input file; choose another --out", path)
+        refuse_foreign(path, is_tuning_file, "a libcamera tuning file")
     exported = [
         export_tuning(
             cal,
@@ -572,7 +568,12 @@ def export_lst_cmd(
 ) -> None:
     """Write the legacy firmware's lens shading table (uint8 .npy for the picamera fork)."""
     from .calibration import load_calibration
-    from .export.legacy import legacy_table, save_legacy_table
+    from .export.legacy import is_legacy_table, legacy_table, save_legacy_table
+
+    refuse_inputs_as_output(out, [calibration])
+    if out.exists() and not overwrite:
+        raise OutputError("exists already (use --overwrite to replace it)", out)
+    refuse_foreign(out, is_legacy_table, "a legacy lens shading table")
 
     table = legacy_table(load_calibration(calibration))
     save_legacy_table(out, table, overwrite=overwrite)
@@ -606,13 +607,15 @@ def apply_tuning_cmd(
 ) -> None:
     """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
     from .export.isp import apply_tuning, full_sensor_size, mode_for_image
-    from .output import write_rgb_tiff
+    from .output import is_picamcal_output, write_rgb_tiff
 
     tuning = _load_tuning(tuning_file)
     headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
     raw = _reader(pattern, black_level, **headless)(image)
-    if _same_file(out, image):
-        raise OutputError("would replace the input image; choose another --out", out)
+    refuse_inputs_as_output(out, [image, tuning_file])
+    if out.exists() and not overwrite:
+        raise OutputError("exists already (use --overwrite to replace it)", out)
+    refuse_foreign(out, is_picamcal_output, "an image picamcal wrote")
     gains = _numbers(colour_gains, 2, "--colour-gains")
     crop = _numbers(sensor_crop, 4, "--sensor-crop")
     full = _parse_size(sensor_size, "--sensor-size") if sensor_size is not None else full_sensor_size(raw)
@@ -775,6 +778,7 @@ def analyse_cmd(
     from .analysis.wheels import analyse, find_wheels, polar_plot
     from .calibration import load_calibration
 
+    refuse_inputs_as_output(out, [*images, calibration, layout])
     cal = load_calibration(calibration) if calibration is not None else None
     target_layout = _read_json(layout) if layout is not None else None
     outputs = [out / f"{image.stem}_analysis.json" for image in images]

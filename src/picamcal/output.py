@@ -556,3 +556,25 @@ __all__ = [
     "write_corrected",
     "write_rgb_tiff",
 ]
+
+
+def is_picamcal_output(path: str | os.PathLike[str]) -> bool:
+    """True if ``path`` is an image picamcal wrote (its Software field names picamcal): one ``overwrite`` may replace.
+
+    Examples
+    --------
+    >>> is_picamcal_output("corrected/target.tiff")  # doctest: +SKIP
+    True
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        head = f.read(8)
+    if head[:4] in (b"II*\x00", b"MM\x00*"):
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages.first.tags.get(305)  # Software
+            return tag is not None and str(tag.value).startswith("picamcal")
+    from PIL import Image
+
+    with Image.open(path) as image:
+        software = image.info.get("Software") or image.getexif().get(0x0131) or ""
+    return str(software).startswith("picamcal")

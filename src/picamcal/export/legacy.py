@@ -141,3 +141,18 @@ def save_legacy_table(path: str | os.PathLike[str], table: np.ndarray, overwrite
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
         np.save(f, table)
     return path
+
+
+def is_legacy_table(path: str | os.PathLike[str]) -> bool:
+    """True if ``path`` is a legacy lens shading table (``.npy`` of uint8, shape (4, rows, columns)).
+
+    Examples
+    --------
+    >>> is_legacy_table("lens_shading.npy")  # doctest: +SKIP
+    True
+    """
+    try:
+        table = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError):
+        return False
+    return table.dtype == np.uint8 and table.ndim == 3 and table.shape[0] == 4

@@ -327,3 +327,18 @@ def save_tuning(path: str | os.PathLike[str], tuning: dict[str, Any], overwrite:
 def sensor_of_tuning_file(path: str | os.PathLike[str]) -> str | None:
     """The sensor a stock tuning file is for, from its name (``imx219.json``, ``imx219_noir.json``)."""
     return find_sensor_name(Path(path).stem)
+
+
+def is_tuning_file(path: str | os.PathLike[str]) -> bool:
+    """True if ``path`` is a libcamera tuning file: one ``overwrite`` may replace with another.
+
+    Examples
+    --------
+    >>> is_tuning_file(stock_tuning_path("imx219", "pisp"))
+    True
+    """
+    try:
+        load_tuning(path)
+    except TuningError:
+        return False
+    return True

@@ -17,6 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from .._atomic import refuse_inputs_as_output
 from .._files import json_default
 from .._version import __version__
 from ..calibration import Calibration
@@ -85,17 +86,35 @@ _FLAT_NOTE = (
 )
 
 
+#: The file that marks a folder as a report picamcal wrote: the only kind of folder ``overwrite`` replaces.
+REPORT_MARKER = ".picamcal-report"
+
+
 def _esc(value: Any) -> str:
     return html.escape(str(value))
 
 
 def _prepare_target(out: Path, overwrite: bool) -> None:
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise OutputError("exists and is not empty (use --overwrite to replace the report)", out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        if not overwrite:
+            raise OutputError("exists and is not empty (use --overwrite to replace the report)", out)
+        if out.is_symlink() or not (out / REPORT_MARKER).is_file():
+            raise OutputError(
+                f"is not a picamcal report (no {REPORT_MARKER} in it): --overwrite replaces only reports picamcal "
+                "wrote; choose another --out",
+                out,
+            )
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out.parent) from exc
+
+
+def _make_shareable(folder: Path) -> None:
+    """The permissions of an ordinary new folder (mkdtemp makes it private, 0700)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(folder, 0o777 & ~umask)
 
 
 def _swap_into_place(build: Path, out: Path) -> None:
@@ -188,7 +207,8 @@ def write_report(
     cra_corner_deg : float, optional
         Chief ray angle of the sensor's lenslets at the corner, to turn the vignetting offset into a tilt.
     overwrite : bool
-        Replace an existing report (only once the new one is complete).
+        Replace an existing report (only once the new one is complete); only a folder that holds picamcal's
+        :data:`REPORT_MARKER`, never another folder.
     progress : callable, optional
         Called with a description of each step.
 
@@ -206,6 +226,8 @@ def write_report(
 
     step = progress or (lambda _: None)
     out = Path(out_dir)
+    sources = [image for image in test_images if not isinstance(image, RawImage)]
+    refuse_inputs_as_output(out, [calibration.path, *sources])
     _prepare_target(out, overwrite)
     raws = [image if isinstance(image, RawImage) else read_raw(image) for image in test_images]
     for raw in raws:
@@ -225,6 +247,8 @@ def write_report(
         (build / "index.html").write_text(page, encoding="utf-8")
         record = {"software_version": __version__, "checks": checks, "test_images": analyses}
         (build / "report.json").write_text(json.dumps(record, indent=2, default=json_default))
+        (build / REPORT_MARKER).write_text(f"a report written by picamcal {__version__}\n")
+        _make_shareable(build)
         step("finishing")
         _swap_into_place(build, out)
     except BaseException:
