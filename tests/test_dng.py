@@ -159,17 +159,23 @@ def test_exiftool_validate_reports_nothing(tmp_path, white, colour_raw):
         assert exiftool_problems(path) == [], name
 
 
+#: Another writer's minimal BGGR DNG tags (CFA, DNG version, model, black and white level), for tifffile.
+_MINIMAL_TAGS = [
+    (33421, 3, 2, (2, 2), True),
+    (33422, 1, 4, bytes((2, 1, 1, 0)), True),
+    (50706, 1, 4, bytes((1, 4, 0, 0)), True),
+    (50708, 2, 0, "imx219", True),
+    (50714, 3, 1, 64, True),
+    (50717, 3, 1, 1023, True),
+]
+
+
 def test_exiftool_check_catches_the_old_layout(tmp_path, white):
     # What picamcal wrote before: ExposureTime and ISO in IFD 0. The check above must see it; LibRaw read ISO 0.
     need("exiftool")
     path = tmp_path / "old.dng"
     tags = [
-        (33421, 3, 2, (2, 2), True),
-        (33422, 1, 4, bytes((2, 1, 1, 0)), True),
-        (50706, 1, 4, bytes((1, 4, 0, 0)), True),
-        (50708, 2, 0, "imx219", True),
-        (50714, 3, 1, 64, True),
-        (50717, 3, 1, 1023, True),
+        *_MINIMAL_TAGS,
         (33434, 5, 1, (1, 100), True),
         (34855, 3, 1, 100, True),
     ]
@@ -354,14 +360,7 @@ def test_capture_date_defaults_to_the_write_time(tmp_path, white):
 
 def test_a_dng_without_colour_tags_reads_and_keeps_what_another_writer_put(tmp_path, white):
     # Another writer's DNG: no JSON, and once no colour tags at all, once a neutral and matrix of its own.
-    base = [
-        (33421, 3, 2, (2, 2), True),
-        (33422, 1, 4, bytes((2, 1, 1, 0)), True),
-        (50706, 1, 4, bytes((1, 4, 0, 0)), True),
-        (50708, 2, 0, "imx219", True),
-        (50714, 3, 1, 64, True),
-        (50717, 3, 1, 1023, True),
-    ]
+    base = _MINIMAL_TAGS
     bare = tmp_path / "bare.dng"
     tifffile.imwrite(bare, white.bayer, photometric=32803, extratags=base, metadata=None)
     meta = read_raw(bare, verify=False).metadata

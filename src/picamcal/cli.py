@@ -20,7 +20,7 @@ from rich.table import Table
 
 from ._atomic import atomic_path, refuse_foreign, refuse_inputs_as_output
 from ._version import __version__
-from .errors import OutputError, PicamcalError, PicamcalWarning
+from .errors import OutputError, PicamcalError, PicamcalWarning, closest
 
 app = typer.Typer(
     help="Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics.",
@@ -72,13 +72,11 @@ RawSensorOption = Annotated[
 
 def _choice(value: str, choices: Sequence[str], option: str) -> str:
     """``value`` as one of ``choices``, compared case-insensitively; a near miss gets "did you mean"."""
-    import difflib
-
     by_key = {c.lower(): c for c in choices}
     if value.lower() in by_key:
         return by_key[value.lower()]
-    close = difflib.get_close_matches(value.lower(), list(by_key), n=1, cutoff=0.6)
-    hint = f"; did you mean {by_key[close[0]]}?" if close else ""
+    near = closest(value, choices)
+    hint = f"; did you mean {near}?" if near else ""
     raise typer.BadParameter(f"{value!r} is not one of {', '.join(choices)}{hint}", param_hint=option)
 
 

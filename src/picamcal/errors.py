@@ -7,6 +7,7 @@ status 2.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from os import PathLike
 
 
@@ -41,6 +42,21 @@ class CalibrationFileError(PicamcalError):
 
 class OutputError(PicamcalError):
     """An output cannot be written (exists already, or the place is not writable)."""
+
+
+def closest(value: str, choices: Iterable[str], cutoff: float = 0.6) -> str | None:
+    """The choice nearest ``value``, compared case-insensitively, for a "did you mean"; None if none is close.
+
+    Examples
+    --------
+    >>> closest("center", ["balance", "flat", "centre", "pure"]), closest("xyz", ["flat"])
+    ('centre', None)
+    """
+    import difflib
+
+    by_key = {c.lower(): c for c in choices}
+    close = difflib.get_close_matches(value.lower(), list(by_key), n=1, cutoff=cutoff)
+    return by_key[close[0]] if close else None
 
 
 class PicamcalWarning(UserWarning):

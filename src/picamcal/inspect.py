@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -81,7 +82,8 @@ def what_else(path: Path) -> str | None:
     from .raw.npz import is_raw_npz
 
     try:
-        head = path.read_bytes()[:1] if path.stat().st_size <= _MAX_JSON_BYTES else b""
+        with open(path, "rb") as f:
+            head = f.read(1) if os.fstat(f.fileno()).st_size <= _MAX_JSON_BYTES else b""
     except OSError:
         return None
     if path.suffix.lower() == ".npz" and not is_raw_npz(path):

@@ -7,10 +7,9 @@ take it from the file.
 
 from __future__ import annotations
 
-import difflib
 from dataclasses import dataclass
 
-from .errors import PicamcalError
+from .errors import PicamcalError, closest
 
 
 @dataclass(frozen=True)
@@ -226,8 +225,8 @@ def get_sensor(name: str) -> Sensor:
     try:
         return SENSORS[name.lower()]
     except KeyError:
-        close = difflib.get_close_matches(name.lower(), list(SENSORS), n=1, cutoff=0.6)
-        hint = f"; did you mean {close[0]}?" if close else ""
+        near = closest(name, SENSORS)
+        hint = f"; did you mean {near}?" if near else ""
         raise PicamcalError(f"unknown sensor {name!r} (known: {', '.join(SENSORS)}){hint}") from None
 
 

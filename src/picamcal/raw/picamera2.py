@@ -19,7 +19,6 @@ here except inside :func:`capture_raw`, which is given a camera object.
 
 from __future__ import annotations
 
-import difflib
 import functools
 import json
 import math
@@ -34,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from .._atomic import atomic_path
-from ..errors import OutputError, PicamcalWarning, RawFormatError
+from ..errors import OutputError, PicamcalWarning, RawFormatError, closest
 from ..sensors import black_level_at, find_sensor_name, get_sensor
 from .model import RawImage
 from .packing import pack, packed_row_bytes, unpack
@@ -161,8 +160,8 @@ def parse_raw_format(name: str, source: str | os.PathLike[str] | None = None) ->
 def _nearest_format(key: str) -> str:
     if match := re.fullmatch(rf"S({'|'.join(_ORDERS)})(10|12|14)P", key):  # V4L2's name of a packed format
         return f"; did you mean S{match[1]}{match[2]}_CSI2P?"
-    close = difflib.get_close_matches(key, RAW_FORMATS, n=1, cutoff=0.75)
-    return f"; did you mean {close[0]}?" if close else ""
+    near = closest(key, RAW_FORMATS, cutoff=0.75)
+    return f"; did you mean {near}?" if near else ""
 
 
 @dataclass(frozen=True)

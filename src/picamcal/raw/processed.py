@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import PicamcalError, RawFormatError
+from ..errors import PicamcalError, RawFormatError, closest
 from ._files import file_head
 
 
@@ -128,10 +128,8 @@ def linearise(values: np.ndarray, encoding: str) -> np.ndarray:
     if kind == "tuning" and arg:
         linear, encoded = tuning_gamma_curve(arg)
         return np.interp(values, encoded, linear).astype(np.float32)
-    import difflib
-
-    close = difflib.get_close_matches(kind, ["srgb", "linear", "gamma", "tuning"], n=1, cutoff=0.6)
-    hint = f" (did you mean {close[0]}{':...' if close[0] in ('gamma', 'tuning') else ''}?)" if close else ""
+    near = closest(kind, ["srgb", "linear", "gamma", "tuning"])
+    hint = f" (did you mean {near}{':...' if near in ('gamma', 'tuning') else ''}?)" if near else ""
     raise PicamcalError(f"unknown input encoding {encoding!r}{hint}: use srgb, linear, gamma:G or tuning:FILE")
 
 
