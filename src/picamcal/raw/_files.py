@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import RawFormatError
+from ..limits import require_regular_file
 
 
 def file_head(path: Path, size: int = 8) -> bytes:
@@ -13,8 +14,10 @@ def file_head(path: Path, size: int = 8) -> bytes:
     Raises
     ------
     RawFormatError
-        No such file, a directory, unreadable, or empty.
+        No such file, a directory or another thing that is not a regular file (a FIFO would block), unreadable,
+        or empty.
     """
+    require_regular_file(path)
     try:
         with open(path, "rb") as f:
             head = f.read(size)
