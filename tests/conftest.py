@@ -39,3 +39,39 @@ def linear_refs(request) -> dict[str, RawImage]:
         name: RawImage(render_linear(mixing, a), pattern, (64,) * 4, 1023, 10, "imx219", {"path": f"<{name}>"})
         for name, a in amounts.items()
     }
+
+
+# Started from a small launcher: Linux starts a child's ru_maxrss at the peak of the process it was forked from
+# (exec keeps the old memory's high-water mark), so a child forked from pytest itself would report at least
+# pytest's own size. The launcher is a bare Python of about 10 MB that reports its own child's peak alone.
+_LAUNCHER = """
+import os, subprocess, sys
+child = subprocess.Popen(sys.argv[2:], stdout=subprocess.DEVNULL)
+_, status, usage = os.wait4(child.pid, 0)
+with open(sys.argv[1], "w") as f:
+    f.write(str(usage.ru_maxrss * 1024))
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
+def run_measured(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> tuple[int, str, int]:
+    """Run a command to the end: its exit status, stderr and peak resident memory in bytes (the kernel's count).
+
+    For memory tests; compare the peak with a legitimate input's measured in the same test.
+    """
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        peak_file = Path(folder) / "peak"
+        result = subprocess.run(
+            [sys.executable, "-c", _LAUNCHER, str(peak_file), *args],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            timeout=timeout,
+        )
+        return result.returncode, result.stderr, int(peak_file.read_text())

@@ -17,7 +17,7 @@ import pytest
 import rawpy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from PIL import Image
+from PIL import Image, TiffImagePlugin
 
 from picamcal.errors import OutputError, RawFormatError
 from picamcal.raw import RawImage
@@ -88,8 +88,8 @@ def jpeg(model: str | None = "RP_imx219", *, exposure=None, iso=None, maker_note
     if model is not None:
         exif[272] = model
     sub = exif.get_ifd(0x8769)
-    if exposure is not None:
-        sub[33434] = exposure
+    if exposure is not None:  # a RATIONAL, as the firmware writes it (a bare tuple would be written as two LONGs)
+        sub[33434] = TiffImagePlugin.IFDRational(*exposure)
     if iso is not None:
         sub[34855] = iso
     if maker_note is not None:

@@ -195,11 +195,13 @@ def test_calibration_that_does_not_fit_the_image(cal_path, tmp_path):
     other = tmp_path / "other"
     assert run("simulate", "--out", str(other), "--sensor", "imx477", "--size", SIM_SIZE).returncode == 0
     out = tmp_path / "out"
-    assert_bad_input(
-        run("correct", str(cal_path), str(other / "target.dng"), "--out", str(out)),
-        "target.dng",
-        "sensor imx477, calibration is for imx219",
-    )
+    result = run("correct", str(cal_path), str(other / "target.dng"), "--out", str(out))
+    # A batch reports the file that does not fit and goes on with the others (here none): exit status 1.
+    assert result.returncode == 1, result.stderr
+    failed = [line for line in result.stderr.splitlines() if line.startswith("picamcal: failed: ")]
+    assert len(failed) == 1 and "target.dng" in failed[0], result.stderr
+    assert "sensor imx477, calibration is for imx219" in failed[0]
+    assert "Traceback" not in result.stderr
     assert not out.exists() or not any(out.iterdir())
 
 

@@ -24,7 +24,8 @@ import tifffile
 from picamcal import RawFormatError, read_raw
 from picamcal.acquire.acquisition import acquire, load_manifest
 from picamcal.acquire.cameras import SimCamera
-from picamcal.raw import RawImage, override, write_dng
+from picamcal.errors import PicamcalWarning
+from picamcal.raw import RawImage, write_dng
 from picamcal.raw.picamera2 import from_picamera2, to_picamera2
 from picamcal.simulate import expected_response, make_camera, simulate_references, simulate_target
 
@@ -371,14 +372,17 @@ def test_a_dng_without_colour_tags_reads_and_keeps_what_another_writer_put(tmp_p
         (50721, 10, 9, tuple(x for pair in matrix for x in pair), True),
         (50728, 5, 3, (1, 2, 1, 1, 2, 3), True),
         (50778, 3, 1, 17, True),  # standard light A
-        (50964, 10, 9, (1, 0) * 9, True),  # a zero denominator: malformed, ignored
+        (50964, 10, 9, (1, 0) * 9, True),  # a zero denominator: malformed, left out with a warning
     ]
     tifffile.imwrite(coloured, white.bayer, photometric=32803, extratags=base + extra, metadata=None)
-    meta = read_raw(coloured, verify=False).metadata
+    with pytest.warns(PicamcalWarning, match="ForwardMatrix1 has a zero denominator"):
+        meta = read_raw(coloured, verify=False).metadata
     assert meta["as_shot_neutral"] == pytest.approx([0.5, 1.0, 2 / 3])
     assert meta["color_matrix1"] == pytest.approx([0.9, -0.2, -0.1, -0.3, 1.1, 0.2, -0.05, 0.15, 0.6])
     assert meta["calibration_illuminant1"] == 17 and "forward_matrix1" not in meta
-    again = read_raw(write_dng(tmp_path / "again.dng", read_raw(coloured, verify=False)), verify=False).metadata
+    with pytest.warns(PicamcalWarning):
+        read_back = read_raw(coloured, verify=False)
+    again = read_raw(write_dng(tmp_path / "again.dng", read_back), verify=False).metadata
     for key in ("as_shot_neutral", "color_matrix1", "calibration_illuminant1"):
         assert again[key] == pytest.approx(meta[key]), key
 
@@ -394,7 +398,8 @@ def test_metadata_json_is_kept_and_colour_tags_are_the_truth(tmp_path, white):
 
 
 def test_unknown_black_level_and_bad_colour_metadata_are_refused(tmp_path, white):
-    unknown = override(white, black_level=float("nan"))
+    # NaN is how a RawImage says "unknown" (override() refuses it as a value given by the user).
+    unknown = RawImage(white.bayer, white.pattern, (float("nan"),) * 4, white.white_level, 10, white.sensor)
     with pytest.raises(RawFormatError, match=r"no black level.*--black-level"):
         write_dng(tmp_path / "a.dng", unknown)
     bad = without(white)

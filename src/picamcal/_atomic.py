@@ -1,35 +1,198 @@
-"""Write files so that a reader never sees a half-written one: a temporary name, then a rename."""
+"""Write files so that a reader never sees a half-written one: a temporary name, then a rename.
+
+Every temporary picamcal makes beside an output (a file being written, a report folder being built, a batch's
+probe, a zarr stack's in-use marker) is named ``.<stem>.picamcal-<host>-<pid>-<random>.tmp<suffix>``: hidden,
+recognisable, owned by process ``<pid>`` on the machine whose name hashes to ``<host>``, and never longer than a
+file name may be (the stem is shortened). A run killed with ``kill -9`` cannot remove its temporaries; the next
+run writing in the same folder does (:func:`remove_stale_temporaries`): only names of this pattern, made on this
+machine, whose process has ended. Another machine's temporaries (a shared folder) and a live run's are kept.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import functools
+import hashlib
 import os
-import tempfile
+import re
+import shutil
+import socket
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from .errors import OutputError
+
+#: The longest file name (bytes) of Linux, macOS and Windows file systems.
+_NAME_MAX = 255
+#: A picamcal temporary's name; ``host`` is :func:`_host_tag`, ``suffix`` the output's (none for a folder).
+_TEMPORARY = re.compile(
+    r"^\.(?P<stem>.*)\.picamcal-(?P<host>[0-9a-f]{8})-(?P<pid>[1-9][0-9]{0,9})-[0-9a-f]{8}\.tmp(?P<suffix>\.[^.]*)?$",
+    re.DOTALL,  # a name may hold any character but "/"
+)
+#: Folders whose stale temporaries this process has removed already (atomic_path looks once per folder).
+_CLEANED: set[Path] = set()
+
+
+@functools.cache
+def _host_tag() -> str:
+    """Eight hex digits naming this machine: a process id means something only on the machine that issued it."""
+    return hashlib.sha256(socket.gethostname().encode("utf-8", "surrogateescape")).hexdigest()[:8]
+
+
+def temporary_name(target: str | os.PathLike[str], suffix: str | None = None) -> Path:
+    """A new temporary name beside ``target``, owned by this process (see the module docstring); not created.
+
+    ``suffix`` defaults to ``target``'s, so that writers choosing a format by suffix still work. The stem is
+    shortened so that the name fits in 255 bytes, whatever the length of ``target``'s name.
+
+    Examples
+    --------
+    >>> temporary_name("out/cal.npz").name  # doctest: +SKIP
+    '.cal.picamcal-3fa4c2e1-4123-9b0c77d2.tmp.npz'
+    """
+    target = Path(target)
+    suffix, stem = _suffix_and_stem(target, suffix)
+    tail = f".picamcal-{_host_tag()}-{os.getpid()}-{os.urandom(4).hex()}.tmp{suffix}"
+    room = _NAME_MAX - 1 - len(os.fsencode(tail))
+    stem = stem[: max(room, 0)]
+    while len(os.fsencode(stem)) > room:  # cut whole characters: some file systems take only valid UTF-8
+        stem = stem[:-1]
+    return target.parent / f".{stem}{tail}"
+
+
+def _suffix_and_stem(target: Path, suffix: str | None) -> tuple[str, str]:
+    """The temporary's suffix (``target``'s by default) and the part of ``target``'s name before it."""
+    suffix = target.suffix if suffix is None else suffix
+    return suffix, target.name.removesuffix(target.suffix) if suffix == target.suffix else target.name
+
+
+def make_temporary(target: str | os.PathLike[str], *, folder: bool = False, suffix: str | None = None) -> Path:
+    """Create a new temporary file (or ``folder``) beside ``target`` with the permissions of an ordinary new one.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be written (missing, read-only, full).
+
+    Examples
+    --------
+    >>> build = make_temporary("report", folder=True)  # doctest: +SKIP
+    """
+    for _ in range(100):  # a clash of 32 random bits with this process's own names: try another
+        path = temporary_name(target, suffix)
+        try:
+            if folder:
+                os.mkdir(path, 0o777)  # the umask applies: an ordinary folder, not mkdtemp's private 0700
+            else:
+                os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise OutputError(f"cannot write here: {exc.strerror or exc}", Path(target)) from exc
+        return path
+    raise OutputError("cannot make a temporary name here", Path(target))
+
+
+def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
+    """Remove the temporaries in ``folder`` that runs killed on this machine left; return what was removed.
+
+    Only names of picamcal's pattern (module docstring) whose process has ended; never a live process's
+    temporary, another machine's, or anything else. A folder that cannot be read is left alone.
+
+    Examples
+    --------
+    >>> remove_stale_temporaries("corrected")  # doctest: +SKIP
+    [PosixPath('corrected/.f07.picamcal-3fa4c2e1-4123-9b0c77d2.tmp.tiff')]
+    """
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        if not _is_stale(entry.name):
+            continue
+        path = Path(entry.path)
+        try:
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        except FileNotFoundError:  # another run removed it first
+            pass
+        except OSError:  # not ours to remove after all (permissions): leave it
+            continue
+        removed.append(path)
+    return removed
+
+
+def has_live_temporary(target: str | os.PathLike[str], suffix: str | None = None) -> bool:
+    """Whether a temporary for ``target`` (:func:`temporary_name` with this ``suffix``) is beside it and not stale:
+    a live process's, or another machine's.
+
+    A shortened stem matches every name it is the start of: in doubt, the answer is yes.
+
+    Examples
+    --------
+    >>> has_live_temporary("run1.zarr", ".writing")  # doctest: +SKIP
+    False
+    """
+    target = Path(target)
+    suffix, stem = _suffix_and_stem(target, suffix)
+    try:
+        names = [entry.name for entry in os.scandir(target.parent)]
+    except OSError:
+        return False
+    for name in names:
+        match = _TEMPORARY.match(name)
+        if match and (match["suffix"] or "") == suffix and stem.startswith(match["stem"]) and not _is_stale(name):
+            return True
+    return False
+
+
+def _is_stale(name: str) -> bool:
+    match = _TEMPORARY.match(name)
+    return bool(match) and match["host"] == _host_tag() and not _process_alive(int(match["pid"]))
+
+
+def _process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine; when in doubt, yes (then its temporaries are kept)."""
+    if pid == os.getpid() or os.name != "posix":  # elsewhere os.kill(pid, 0) would end the process
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):  # another user's process (EPERM), or no such number
+        return True
+    try:  # a zombie has ended already: only its exit status waits for its parent
+        with open(f"/proc/{pid}/stat", "rb") as stat:
+            return stat.read().rpartition(b")")[2].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return True
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str], overwrite: bool = True) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it to ``path``, on failure remove it.
 
-    The temporary file keeps ``path``'s suffix so that writers choosing a format by suffix still work.
+    The temporary (:func:`temporary_name`) keeps ``path``'s suffix so that writers choosing a format by suffix
+    still work. The first time this process writes in a folder, the temporaries that killed runs left there
+    are removed (:func:`remove_stale_temporaries`).
+
+    Examples
+    --------
+    >>> with atomic_path("notes.txt") as tmp:  # doctest: +SKIP
+    ...     tmp.write_text("complete or absent")
     """
     target = Path(path)
     if not overwrite and target.exists():
         raise OutputError("exists already (use --overwrite to replace it)", target)
-    try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=target.parent)
-    except OSError as exc:
-        raise OutputError(f"cannot write here: {exc.strerror or exc}", target) from exc
-    os.close(fd)
-    tmp = Path(tmp_name)
-    # mkstemp makes the file private (0600); give it the permissions an ordinary new file would get.
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    folder = target.parent.absolute()
+    if folder not in _CLEANED:
+        remove_stale_temporaries(folder)
+        _CLEANED.add(folder)
+    tmp = make_temporary(target)
     try:
         yield tmp
         os.replace(tmp, target)
@@ -55,11 +218,11 @@ def refuse_inputs_as_output(output: str | os.PathLike[str], inputs: Iterable[str
     ...
     picamcal.errors.OutputError: captures: holds the input captures/target.dng; choose another output
     """
-    out = Path(output).absolute().resolve()
+    out = Path(os.path.realpath(output))  # realpath, not resolve: a symlink loop is an input like any other
     for item in inputs:
         if item is None:
             continue
-        source = Path(item).absolute().resolve()
+        source = Path(os.path.realpath(item))
         if out == source:
             raise OutputError("is an input of this command; choose another output", output)
         if source.is_relative_to(out):

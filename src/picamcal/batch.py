@@ -13,10 +13,13 @@ What it guarantees:
 - **Calibration loaded once per worker** (a module-level cache keyed by the file's path and SHA-256).
 - **No half-written output.** Every file is written to a temporary name and renamed; zarr chunks likewise
   (zarr's local store writes each chunk to a temporary name). Temporaries left by a killed batch are
-  removed by the next run.
+  removed by the next run (:func:`picamcal._atomic.remove_stale_temporaries`).
+- **Nothing left running.** The pool's workers end when this process ends, even by ``kill -9``; then the
+  forkserver and multiprocessing's resource tracker, which wait for them, end too.
 - **Resumable.** Existing outputs are skipped unless ``overwrite``; the zarr stack records its finished
   frames in its attributes. Running the same command again finishes an interrupted batch.
-- **A bad file does not stop the others.** Its reason is in :attr:`BatchResult.failed`. Problems with
+- **A bad file does not stop the others,** whichever it is, the first included: a corrupt file, or one of
+  another size or sensor than the calibration's. Its reason is in :attr:`BatchResult.failed`. Problems with
   the whole batch (the calibration, the options, the output folder, the scheduler) raise a
   :class:`~picamcal.errors.PicamcalError` before any work.
 
@@ -36,7 +39,7 @@ import multiprocessing
 import os
 import re
 import socket
-import tempfile
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterable, Sequence
@@ -48,11 +51,17 @@ from typing import Any
 
 import numpy as np
 
-from ._atomic import refuse_foreign, refuse_inputs_as_output
+from ._atomic import (
+    has_live_temporary,
+    make_temporary,
+    refuse_foreign,
+    refuse_inputs_as_output,
+    remove_stale_temporaries,
+)
 from ._files import sha256_file
 from .calibration import MODES, Calibration, load_calibration
 from .correct import correct, correct_processed
-from .errors import OutputError, PicamcalError, PicamcalWarning, RawFormatError
+from .errors import OutputError, PicamcalError, PicamcalWarning
 from .output import (
     OUTPUT_FORMATS,
     OUTPUT_SUFFIXES,
@@ -80,12 +89,11 @@ COMPRESSIONS = ("zstd",)
 OME_NGFF_VERSION = "0.5"
 
 _GLOB_CHARS = re.compile(r"[*?[]")
-#: Temporary names of picamcal._atomic.atomic_path: ".<stem>.<8 random characters>.tmp<suffix>", every output suffix.
-_ATOMIC_TEMPORARY = re.compile(r"^\.(?P<stem>.+)\.[a-z0-9_]{8}\.tmp\.(tiff|png|jpg)$")
-_PROBE_PREFIX = ".picamcal-probe."
 #: errno values that mean the output place itself is unusable: every further file would fail the same way.
 _PLACE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
 _ZARR_TILE = 1024
+#: The suffix of the temporary that says a run is writing a zarr stack.
+_WRITING = ".writing"
 _RECORD_INTERVAL_S = 1.0
 
 
@@ -167,7 +175,8 @@ def expand_inputs(items: Iterable[str | os.PathLike[str]], suffixes: Sequence[st
     Raises
     ------
     PicamcalError
-        An item does not exist, a pattern matches nothing, or a folder holds no such file.
+        A pattern matches nothing, or a folder holds no such file. A named file that is missing is kept: it
+        fails on its own when the batch reads it, and the other files are still done.
 
     Examples
     --------
@@ -181,18 +190,16 @@ def expand_inputs(items: Iterable[str | os.PathLike[str]], suffixes: Sequence[st
         path = Path(item)
         if path.is_dir():
             files = _folder_files(path, wanted)
-        elif path.exists():
-            files = [path]
-        elif _GLOB_CHARS.search(str(item)):
+        elif _GLOB_CHARS.search(str(item)) and not path.exists():
             files = []
             for match in sorted(glob.glob(str(item), recursive=True)):
                 files.extend(_folder_files(Path(match), wanted) if Path(match).is_dir() else [Path(match)])
             if not files:
                 raise PicamcalError("no files match this pattern", item)
-        else:
-            raise PicamcalError("no such file or folder", item)
+        else:  # a file, or what is named as one: one that is missing or unreadable fails on its own in the batch
+            files = [path]
         for file in files:
-            key = file.resolve()
+            key = Path(os.path.realpath(file))
             if key not in seen:
                 seen.add(key)
                 found.append(file)
@@ -246,10 +253,10 @@ def run_batch(
     """Correct many images in parallel; write ``out_dir/<stem>.tiff`` (``.png``, ``.jpg``) for each, or one zarr stack.
 
     Everything about the batch as a whole is checked before any work: the options, the calibration, the
-    inputs, that the calibration fits the first image, the scheduler, and that the output place can be
-    written (a probe file the size of one output, removed again). After that a file that fails is
-    recorded in :attr:`BatchResult.failed` and the others go on; only an output place that becomes
-    unusable (disk full, read-only) stops the batch, with an :class:`~picamcal.errors.OutputError`.
+    inputs, the scheduler, and that the output place can be written (a probe file the size of one output,
+    removed again). After that a file that fails (unreadable, or not of the calibration's size, sensor and
+    Bayer order) is recorded in :attr:`BatchResult.failed` and the others go on; only an output place that
+    becomes unusable (disk full, read-only) stops the batch, with an :class:`~picamcal.errors.OutputError`.
 
     Parameters
     ----------
@@ -424,14 +431,14 @@ def run_batch(
     place = Path(zarr_path if zarr_path is not None else out_dir)
     if not jobs:  # everything done already: a finished batch run again has nothing to do
         return BatchResult(done=[], skipped=skipped, failed=[])
-    frame_shape = _preflight(cal, sources, jobs, settings)
+    frame_shape = _frame_shape(cal, sources, jobs, settings)
 
     client = _connect(scheduler, settings, scheduler_timeout) if scheduler is not None else None
     try:
         if stack is not None:
             stack.prepare(frame_shape, cal.bin_size if binned else 1, compression)
         else:
-            _prepare_folder(place, jobs, _frame_bytes(frame_shape, output_format))
+            _prepare_folder(place, _frame_bytes(frame_shape, output_format))
         if client is not None:
             runner: _InProcess | _Pool | _Dask = _Dask(settings, client)
         elif workers == 0 or (workers is None and len(jobs) == 1):  # a pool for one file is only overhead
@@ -441,6 +448,8 @@ def run_batch(
         result = BatchResult(skipped=skipped)
         place_error = _drive(runner, jobs, sources, result, stack, progress)
     finally:
+        if stack is not None:
+            stack.release()
         if client is not None:
             client.close()
     order = {path: i for i, path in enumerate(sources)}
@@ -477,7 +486,7 @@ def _plan_tiffs(
 ) -> tuple[list[_Job], list[Path]]:
     """One job per input whose file (``<stem><suffix>``) is still to write; refuse name clashes and outputs that
     would replace an input."""
-    inputs = {source.resolve() for source in sources}
+    inputs = {Path(os.path.realpath(source)) for source in sources}
     writers: dict[str, Path] = {}
     jobs, skipped = [], []
     for index, source in enumerate(sources):
@@ -485,7 +494,7 @@ def _plan_tiffs(
         if target.name in writers:
             raise OutputError(f"two inputs would both write {target.name}; correct them separately", source)
         writers[target.name] = source
-        if target.resolve() in inputs:
+        if Path(os.path.realpath(target)) in inputs:
             raise OutputError("output would replace an input file; choose another --out", target)
         if target.exists() and not overwrite:
             skipped.append(source)
@@ -495,25 +504,18 @@ def _plan_tiffs(
     return jobs, skipped
 
 
-def _preflight(cal: Calibration, sources: list[Path], jobs: list[_Job], settings: _Settings) -> tuple[int, ...]:
-    """Check that the calibration fits the first raw image (else nothing fits), and find the frames' shape.
-
-    A first image that cannot be read is not the batch's fault: it fails later like any other file.
-    """
+def _frame_shape(cal: Calibration, sources: list[Path], jobs: list[_Job], settings: _Settings) -> tuple[int, ...]:
+    """The outputs' shape: the calibration's for raw images (no file decides it, so that no bad or mismatched
+    file, the first included, can refuse the others: each fails alone), the first readable image's for
+    processed ones, which may be of another size than the calibration."""
     if settings.processed:
-        for job in jobs:  # processed images have no size of their own to check against; find the first readable
+        for job in jobs:
             try:
                 image = read_processed(sources[job.index], settings.decode)
             except PicamcalError:
                 continue
             return image.rgb.shape
         return (cal.height, cal.width, 3)
-    try:
-        raw = read_raw(sources[jobs[0].index], **settings.read_options, verify=False)
-    except RawFormatError:
-        pass
-    else:
-        cal.check_compatible(raw)
     return (*cal.white.shape[:2], 3) if settings.binned else (cal.height, cal.width, 3)
 
 
@@ -521,28 +523,25 @@ def _frame_bytes(shape: Sequence[int], output_format: str = "float32-tiff") -> i
     return output_bytes(output_format, tuple(shape))
 
 
-def _prepare_folder(out_dir: Path, jobs: list[_Job], frame_bytes: int) -> None:
-    """Create the output folder, check it takes one output, and remove temporaries a killed run left."""
+def _prepare_folder(out_dir: Path, frame_bytes: int) -> None:
+    """Create the output folder, remove the temporaries killed runs left, and check it takes one output."""
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
         raise OutputError("exists and is not a folder", out_dir) from None
     except OSError as exc:
         raise OutputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from exc
+    remove_stale_temporaries(out_dir)
     _probe(out_dir, frame_bytes)
-    stems = {Path(job.target).stem for job in jobs if job.target is not None}
-    for entry in os.scandir(out_dir):
-        match = _ATOMIC_TEMPORARY.match(entry.name)
-        if (match and match["stem"] in stems) or entry.name.startswith(_PROBE_PREFIX):
-            Path(entry.path).unlink(missing_ok=True)
 
 
 def _probe(folder: Path, nbytes: int) -> None:
     """Write (reserve) one output's worth of bytes in ``folder`` and remove it: read-only or full fails here."""
     try:
-        fd, name = tempfile.mkstemp(prefix=_PROBE_PREFIX, dir=folder)
-    except OSError as exc:
-        raise OutputError(f"cannot write here: {exc.strerror or exc}", folder) from exc
+        name = make_temporary(folder / "probe")
+    except OutputError as exc:  # about the folder, not the probe's name
+        raise OutputError(exc.problem, folder) from exc.__cause__
+    fd = os.open(name, os.O_WRONLY)
     try:
         if hasattr(os, "posix_fallocate"):
             try:
@@ -562,7 +561,10 @@ def _probe(folder: Path, nbytes: int) -> None:
 class _ZarrStack:
     """The OME-Zarr stack: planning (which frames are done), creation, and the record of finished frames.
 
-    Only this process writes the group's attributes; workers write only their frames' chunks.
+    Only this process writes the group's attributes; workers write only their frames' chunks. While a run
+    writes, a temporary of this process beside the stack says so (``.<name>.picamcal-...tmp.writing``,
+    :func:`picamcal._atomic.make_temporary`; beside it, as zarr takes whatever is inside for its own), so that
+    another run removes zarr's chunk temporaries (``*.partial``) only when they are a killed run's.
     """
 
     def __init__(self, path: Path, sources: list[Path], settings: _Settings) -> None:
@@ -584,6 +586,7 @@ class _ZarrStack:
         self.resuming = False
         self.recorded_at = 0.0
         self.group: Any = None
+        self.marker: Path | None = None
 
     def _existing_record(self) -> dict[str, Any] | None:
         try:
@@ -617,8 +620,10 @@ class _ZarrStack:
         try:
             if self.resuming:
                 self.group = zarr.open_group(self.path, mode="r+")
-                for partial in self.path.rglob("*.partial"):  # a chunk being written when a run was killed
-                    partial.unlink(missing_ok=True)
+                remove_stale_temporaries(self.path.parent)
+                if not has_live_temporary(self.path, _WRITING):  # no run writes here: a killed one left these
+                    for partial in self.path.rglob("*.partial"):
+                        partial.unlink(missing_ok=True)
             else:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
                 self.group = zarr.open_group(self.path, mode="w", zarr_format=3)
@@ -640,7 +645,13 @@ class _ZarrStack:
                 self.group.attrs.update({"ome": _ome_metadata(scale), "picamcal": self._record()})
         except OSError as exc:
             raise OutputError(f"cannot write here: {exc.strerror or exc}", self.path) from exc
+        self.marker = make_temporary(self.path, suffix=_WRITING)
         _probe(self.path, _frame_bytes(frame_shape))
+
+    def release(self) -> None:
+        """Say that this run no longer writes the stack."""
+        if self.marker is not None:
+            self.marker.unlink(missing_ok=True)
 
     def _record(self) -> dict[str, Any]:
         return {
@@ -771,14 +782,38 @@ class _Pool:
 
 
 def _init_worker(threads: int) -> None:
-    """Share the cores among the workers: numba's parallel kernels would otherwise use a thread per core in
-    every worker. numba's own runtime setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it
-    compiles and refuses a value that differs from the threads it has started."""
+    """End with the process that started the pool, and share the cores among the workers.
+
+    numba's parallel kernels would otherwise use a thread per core in every worker. numba's own runtime
+    setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it compiles and refuses a value
+    that differs from the threads it has started.
+    """
+    _exit_with_parent()
     try:
         import numba
     except ImportError:  # no numba (32-bit Raspberry Pi OS): the numpy path runs in one thread anyway
         return
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def _exit_with_parent() -> None:
+    """End this worker as soon as the process that started it ends, however it ends (``kill -9`` included).
+
+    Nothing else would end it: a worker waits for tasks on a pipe it holds both ends of, and the forkserver
+    and resource tracker wait for their pipes' writers, the workers among them, so all would run on.
+    prctl(PR_SET_PDEATHSIG) does not serve: under forkserver a worker's parent is the forkserver. What
+    multiprocessing gives instead is the parent's sentinel, a pipe only the starting process writes to: it
+    reads as ended when that process is gone. A thread waits on it (no polling) and ends the process.
+    """
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def wait_then_exit() -> None:
+        parent.join()
+        os._exit(1)
+
+    threading.Thread(target=wait_then_exit, name="picamcal-exit-with-parent", daemon=True).start()
 
 
 class _Dask:
@@ -953,7 +988,8 @@ def _correct_file(settings: _Settings, source: Path) -> tuple[np.ndarray, dict[s
     cal = _calibration(settings)
     if settings.processed:
         return _correct_processed(read_processed(source, settings.decode), cal, settings), {}
-    raw = read_raw(source, **settings.read_options)
+    # The calibration's size is checked from the file's header, before a frame of another size is decoded.
+    raw = read_raw(source, **settings.read_options, expected_shape=(cal.height, cal.width))
     return correct(raw, cal, mode=settings.mode, binned=settings.binned), raw.metadata
 
 

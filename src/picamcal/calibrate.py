@@ -15,6 +15,7 @@ same scene; their bin means are averaged, and their temporal noise is measured a
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from collections.abc import Iterable
@@ -40,6 +41,8 @@ MAX_CLIPPED_FRACTION = 1e-4
 MIN_WHITE_FRACTION = 0.05
 #: Bins whose crosstalk matrix has a larger (Frobenius) condition number are not trusted.
 MAX_CONDITION = 100.0
+#: The largest smoothing, as a fraction of the bin grid's shorter side (see :func:`check_smoothing`).
+MAX_SMOOTHING_FRACTION = 0.25
 
 RawLike = RawImage | str | os.PathLike
 #: A reference role: one frame, or several frames of the same scene (a sequence or any iterable) to average.
@@ -108,7 +111,7 @@ def centre_region(nby: int, nbx: int) -> tuple[int, int, int, int]:
     Examples
     --------
     >>> centre_region(154, 205)
-    (51, 103, 68, 137)
+    (51, 102, 68, 136)
     """
     return nby // 3, max(2 * nby // 3, nby // 3 + 1), nbx // 3, max(2 * nbx // 3, nbx // 3 + 1)
 
@@ -180,7 +183,56 @@ def _check_clipping(white: RawImage, clipped: int) -> None:
         )
 
 
-def _load_reference(role: str, ref: Frames, bin_size: int, white: RawImage | None) -> _Reference:
+def check_smoothing(smoothing: float, grid: tuple[int, int] | None = None, source: str | os.PathLike = "") -> None:
+    """Raise unless ``smoothing`` (a Gaussian's standard deviation, in bins) can be applied to a ``grid`` of bins.
+
+    The Gaussian is there to quieten noise and dust in the bin means, not to reshape the field. About 95 % of its
+    weight lies within two standard deviations, so once ``2 * smoothing`` passes half the grid's shorter side the
+    centre's bins are averaged with the edges' and the vignetting the calibration measures is smoothed away (and
+    the filter's cost, which grows with its width, buys nothing): the largest smoothing is a quarter of the
+    shorter side, :data:`MAX_SMOOTHING_FRACTION`. Without ``grid`` only the sign and finiteness are checked.
+
+    Parameters
+    ----------
+    smoothing : float
+        In bins.
+    grid : (nby, nbx), optional
+        Rows and columns of bins.
+    source : path-like
+        The file the grid comes from, named in the error.
+
+    Raises
+    ------
+    CalibrationInputError
+        Negative, not finite, or wider than the grid allows.
+
+    Examples
+    --------
+    >>> check_smoothing(3.0, (154, 205))
+    >>> check_smoothing(1e6, (15, 20))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.CalibrationInputError: smoothing 1e+06 bins is over the limit of 3.75, a quarter of the 15x20 \
+bin grid's shorter side: a wider Gaussian averages the centre with the edges and smooths away the vignetting it \
+measures
+    """
+    if not (math.isfinite(smoothing) and smoothing >= 0):
+        raise CalibrationInputError(f"smoothing {smoothing:g} is out of range: give 0 or more bins (0 = none)")
+    if grid is None:
+        return
+    limit = MAX_SMOOTHING_FRACTION * min(grid)
+    if smoothing > limit:
+        raise CalibrationInputError(
+            f"smoothing {smoothing:g} bins is over the limit of {limit:g}, a quarter of the {grid[0]}x{grid[1]} bin "
+            "grid's shorter side: a wider Gaussian averages the centre with the edges and smooths away the vignetting "
+            "it measures",
+            source or None,
+        )
+
+
+def _load_reference(
+    role: str, ref: Frames, bin_size: int, white: RawImage | None, smoothing: float = 0.0
+) -> _Reference:
     """Read the frames of one role, check each (size and Bayer order against ``white``, clipping), average their bins.
 
     Several frames are averaged bin by bin (binning is linear, so this is the binned mean frame). Their
@@ -199,6 +251,8 @@ def _load_reference(role: str, ref: Frames, bin_size: int, white: RawImage | Non
                 raise CalibrationInputError(f"bin size {bin_size} is larger than the image", raw.source)
             if white is not None:
                 _check_like(raw, white, "white reference")
+            else:  # the white's first frame fixes the grid: the smoothing is checked before any binning
+                check_smoothing(smoothing, (-(-raw.height // bin_size), -(-raw.width // bin_size)), raw.source)
             first = raw
         else:
             _check_like(raw, first, f"first {role} frame")
@@ -286,7 +340,8 @@ def calibrate(
         Bin edge in sensor pixels (even); the paper uses 16.
     smoothing : float
         Standard deviation in bins of a Gaussian applied to the binned responses (0 = none; the
-        paper's code used 3 on the matrix field).
+        paper's code used 3 on the matrix field); at most a quarter of the bin grid's shorter side
+        (:func:`check_smoothing`).
 
     Returns
     -------
@@ -296,7 +351,8 @@ def calibrate(
     ------
     CalibrationInputError
         References of different size or pattern, a saturated or too-dark white, black brighter than
-        white, only some of the colour references, or too many bins whose colour response cannot be inverted.
+        white, only some of the colour references, too many bins whose colour response cannot be inverted, or a
+        smoothing out of range.
     RawFormatError
         A reference whose black level is unknown, without a dark frame.
 
@@ -317,6 +373,7 @@ def calibrate(
     """
     if bin_size < 2 or bin_size % 2:
         raise CalibrationInputError(f"bin size must be an even number of pixels >= 2, got {bin_size}")
+    check_smoothing(smoothing)
     colours = {"red": red, "green": green, "blue": blue}
     missing = [role for role, ref in colours.items() if ref is None]
     if 0 < len(missing) < 3:
@@ -325,7 +382,7 @@ def calibrate(
             "for a flat-field calibration (white only)"
         )
     named = {"white": white, **colours, "black": black}
-    refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, bin_size)
+    refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, bin_size, smoothing)
     site_responses, black_level = _binned_responses(refs, black is not None, smoothing)
     arrays = _derive(site_responses, refs[0].raw.pattern, refs[1].raw.source if len(site_responses) > 1 else "")
     infos = [r.info for r in refs]
@@ -357,7 +414,7 @@ def calibrate_in_situ(
     black : RawImage or path, or a sequence of them, optional
         A dark frame at the in-situ white's settings.
     smoothing : float
-        Gaussian smoothing of the new white, in bins.
+        Gaussian smoothing of the new white, in bins (:func:`check_smoothing`).
 
     Examples
     --------
@@ -366,6 +423,7 @@ def calibrate_in_situ(
     """
     from .calibration import load_calibration
 
+    check_smoothing(smoothing)
     jig = unmixing_from if isinstance(unmixing_from, Calibration) else load_calibration(unmixing_from)
     if not jig.has_unmixing:
         raise CalibrationFileError(
@@ -374,7 +432,7 @@ def calibrate_in_situ(
             jig.path,
         )
     named = {"white": white, "black": black}
-    refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, jig.bin_size)
+    refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, jig.bin_size, smoothing)
     first = refs[0].raw
     if (first.width, first.height) != (jig.width, jig.height):
         problem = f"size {first.width}x{first.height}, the jig calibration is for {jig.width}x{jig.height}"
@@ -401,11 +459,11 @@ def calibrate_in_situ(
     return Calibration(arrays, meta)
 
 
-def _load_all(named: dict[str, Frames], bin_size: int) -> list[_Reference]:
+def _load_all(named: dict[str, Frames], bin_size: int, smoothing: float) -> list[_Reference]:
     """Read the references (white first; the black, when given, last), each checked against the white."""
     refs: list[_Reference] = []
     for role, ref in named.items():
-        refs.append(_load_reference(role, ref, bin_size, refs[0].raw if refs else None))
+        refs.append(_load_reference(role, ref, bin_size, refs[0].raw if refs else None, smoothing))
     return refs
 
 

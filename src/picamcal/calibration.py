@@ -24,9 +24,12 @@ Shapes use ``nby x nbx`` bins of ``bin_size`` sensor pixels (the last row and co
 
 from __future__ import annotations
 
+import ast
 import json
+import math
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,9 +37,11 @@ from typing import Any
 import numpy as np
 
 from ._atomic import atomic_path
+from ._json import Fields, parse_json
 from .bayer import bin_centres
-from .errors import CalibrationFileError
-from .raw.model import RawImage
+from .errors import CalibrationFileError, CalibrationInputError, PicamcalError, RawFormatError
+from .limits import check_size, require_regular_file
+from .raw.model import PATTERNS, RawImage
 
 SCHEMA = "picamcal-calibration"
 SCHEMA_VERSION = 1
@@ -65,6 +70,21 @@ GLOBAL_ARRAYS = {
 }
 #: The arrays of a ``flat`` calibration (``site_responses`` has one reference, the white).
 FLAT_ARRAYS = ("site_responses", "site_white", "white", "lens_shading", "colour_balance")
+#: The one field that is not real floating point: which bins were filled from their neighbours.
+_BOOL_ARRAYS = ("ill_conditioned",)
+#: Responses to the white light and the gains derived from them: zero or negative would divide an image by
+#: nothing, or flip its sign.
+_POSITIVE_ARRAYS = ("site_white", "white", "lens_shading", "colour_balance")
+_KIND_NAMES = {"f": "real floating point (float32 or float64)", "b": "bool", "U": "a unicode string (the record)"}
+#: A record is a few kB; this leaves room for thousands of averaged frames.
+_MAX_RECORD_CHARS = 1 << 20
+#: picamcal writes calibrations uncompressed, and measured fields barely compress; a compressed member may
+#: inflate at most this much (a zip bomb inflates a thousandfold), or to :data:`_INFLATION_FLOOR` bytes.
+_MAX_INFLATION = 32
+_INFLATION_FLOOR = 1 << 20
+_NPY_MAGIC = b"\x93NUMPY"
+#: numpy's own limit on a ``.npy`` header (``max_header_size``).
+_MAX_NPY_HEADER = 10_000
 
 
 @dataclass
@@ -75,12 +95,22 @@ class Calibration:
     :func:`load_calibration`. Arrays are described in :data:`ARRAYS`; ``meta`` is the JSON record.
     A ``flat`` calibration (from a white alone, :attr:`kind`) holds only :data:`FLAT_ARRAYS`.
 
+    It is validated when made (and again when saved): the record's keys and types, every array of its kind in
+    the shape the record implies, real floating point (``ill_conditioned`` bool), finite, and a positive white
+    (``white``, ``site_white``, ``lens_shading``, ``colour_balance`` and the white's ``site_responses``).
+
     Attributes
     ----------
     arrays : dict of str to ndarray
     meta : dict
     path : Path or None
         The file it was loaded from (:func:`load_calibration`), for messages; not saved.
+
+    Raises
+    ------
+    CalibrationInputError
+        Made in memory from fields that cannot correct an image (a zero, negative, NaN or complex white,
+        shapes that disagree with the record); CalibrationFileError, naming the file, when loaded.
 
     Examples
     --------
@@ -93,6 +123,14 @@ class Calibration:
     arrays: dict[str, np.ndarray]
     meta: dict[str, Any] = field(default_factory=dict)
     path: Path | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        # A calibration that cannot correct an image (a zero, negative, NaN or complex white; shapes that disagree
+        # with the record) is refused where it is made, so it can never be saved or used.
+        self._check()
+
+    def _check(self) -> None:
+        _validate(self.arrays, self.meta, self.path, CalibrationFileError if self.path else CalibrationInputError)
 
     def __getattr__(self, name: str) -> Any:
         arrays = self.__dict__.get("arrays", {})
@@ -250,15 +288,25 @@ class Calibration:
     def save(self, path: str | os.PathLike[str], overwrite: bool = True) -> Path:
         """Write the calibration to one ``.npz`` file, atomically (temporary name, then rename).
 
+        Raises
+        ------
+        CalibrationInputError
+            The fields were changed since it was made into ones that fail its checks (see :class:`Calibration`),
+            or the record holds what JSON cannot (NaN); nothing is written.
+
         Examples
         --------
         >>> cal.save("cal.npz")  # doctest: +SKIP
         """
         path = Path(path)
-        record = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, **self.meta}
+        self._check()
+        try:
+            text = json.dumps({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, **self.meta}, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise CalibrationInputError(f"the calibration record is not JSON ({exc})", self.path) from None
         with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
             # Uncompressed: the fields are noise-like floats that barely compress, and saving stays fast.
-            np.savez(f, metadata=np.array(json.dumps(record)), **self.arrays)
+            np.savez(f, metadata=np.array(text), **self.arrays)
         return path
 
 
@@ -299,13 +347,19 @@ def _not_a_calibration(path: Path) -> None:
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
-    """Read a calibration written by :meth:`Calibration.save`, checking its schema, kind and array shapes.
+    """Read a calibration written by :meth:`Calibration.save`, validating it before anything is allocated.
+
+    In order: the file must be a regular file and a zip archive; every member's declared size, compression and
+    ``.npy`` header (dtype and shape) are read without inflating it, and the record is checked (its JSON types,
+    schema version, size, bins and pattern) so that each array's shape and dtype are known before its data is
+    read; a member that inflates more than 32-fold is refused as a zip bomb. Then the values are checked as on
+    creation (:class:`Calibration`): real floating point, finite, and a positive white.
 
     Raises
     ------
     CalibrationFileError
-        Missing, corrupt, an image given in its place, of another schema or version, or with inconsistent
-        arrays.
+        Missing, not a regular file, corrupt, an image given in its place, of another schema or version, or with
+        a record or arrays that are malformed or disagree; one line naming the file and the field.
 
     Examples
     --------
@@ -314,34 +368,150 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     ('imx219', 16, 'full')
     """
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise CalibrationFileError("no such calibration file", path)
+    require_regular_file(path, CalibrationFileError)
     _not_a_calibration(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
-            if "metadata" not in data.files:
+        with zipfile.ZipFile(path) as archive:
+            members = _members(archive, path)
+            if "metadata" not in members:
                 raise CalibrationFileError("not a picamcal calibration file (an .npz without its record)", path)
-            contents = {name: np.array(data[name]) for name in data.files}
-    except (OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise CalibrationFileError(f"not a readable picamcal calibration ({type(exc).__name__}: {exc})", path) from exc
-    except ValueError:  # numpy's advice about allow_pickle does not apply: a calibration holds no objects
-        raise CalibrationFileError("not a picamcal calibration file (it holds Python objects)", path) from None
+            record = _read_record(archive, members.pop("metadata"), path)
+            kind, nby, nbx = _check_record(record, path, CalibrationFileError)
+            expected = _expected_shapes(kind, nby, nbx)
+            extra = sorted(set(members) & (set(ARRAYS) | set(GLOBAL_ARRAYS)) - set(expected))
+            if extra:
+                raise CalibrationFileError(
+                    f"a {kind} calibration holds {', '.join(map(repr, extra))}: inconsistent", path
+                )
+            arrays = {}
+            for name, shape in expected.items():
+                if name not in members:
+                    raise CalibrationFileError(f"calibration lacks the array {name!r}", path)
+                dtypes = "b" if name in _BOOL_ARRAYS else "f"
+                arrays[name] = _read_member(archive, members[name], name, dtypes, shape, path)
+    except (OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, NotImplementedError) as exc:
+        raise CalibrationFileError(f"not a readable picamcal calibration ({type(exc).__name__}: {exc})", path) from None
+    return Calibration(arrays, record, path)
+
+
+def _members(archive: zipfile.ZipFile, path: Path) -> dict[str, zipfile.ZipInfo]:
+    """The archive's ``.npy`` members by array name, each checked for encryption and a zip bomb's inflation."""
+    members: dict[str, zipfile.ZipInfo] = {}
+    for info in archive.infolist():
+        name = info.filename.removesuffix(".npy")
+        if name in members:
+            raise CalibrationFileError(f"the archive holds {info.filename!r} twice: corrupt", path)
+        if info.flag_bits & 0x1:
+            raise CalibrationFileError(f"its {info.filename!r} is encrypted: not a picamcal calibration", path)
+        if info.compress_type != zipfile.ZIP_STORED and info.file_size > max(
+            _INFLATION_FLOOR, _MAX_INFLATION * info.compress_size
+        ):
+            raise CalibrationFileError(
+                f"the archive's {info.filename!r} would inflate from {info.compress_size / 1e6:.1f} MB to "
+                f"{info.file_size / 1e6:.0f} MB: refused as a zip bomb (picamcal writes calibrations uncompressed)",
+                path,
+            )
+        members[name] = info
+    return members
+
+
+def _read_record(archive: zipfile.ZipFile, info: zipfile.ZipInfo, path: Path) -> dict[str, Any]:
+    """The JSON record of the ``metadata`` member, checked for its schema and version."""
+    text = str(_read_member(archive, info, "metadata", "U", (), path)[()])
     try:
-        record = json.loads(str(contents.pop("metadata")))
-    except ValueError:
-        raise CalibrationFileError("not a picamcal calibration file (its record is not JSON)", path) from None
+        record = parse_json(text, CalibrationFileError, "JSON", path)
+    except CalibrationFileError as exc:
+        raise CalibrationFileError(f"not a picamcal calibration file (its record is {exc.problem})", path) from None
     if not isinstance(record, dict) or record.get("schema") != SCHEMA:
         raise CalibrationFileError("not a picamcal calibration file", path)
-    if record.get("schema_version") != SCHEMA_VERSION:
+    version = record.get("schema_version")
+    if type(version) is not int or version != SCHEMA_VERSION:
+        shown = repr(version) if isinstance(version, (int, float, type(None))) else type(version).__name__
         raise CalibrationFileError(
-            f"calibration schema version {record.get('schema_version')!r} is not supported "
-            f"(this picamcal reads version {SCHEMA_VERSION})",
+            f"calibration schema version {shown} is not supported (this picamcal reads version {SCHEMA_VERSION})",
             path,
         )
-    record.pop("schema")
-    record.pop("schema_version")
-    _validate(contents, record, path)
-    return Calibration(contents, record, path)
+    del record["schema"], record["schema_version"]
+    return record
+
+
+def _read_member(
+    archive: zipfile.ZipFile, info: zipfile.ZipInfo, name: str, kinds: str, shape: tuple[int, ...], path: Path
+) -> np.ndarray:
+    """One ``.npy`` member: its header checked against the dtype kinds and shape expected, then its data read.
+
+    The header and the member's declared size must agree with ``shape`` before a byte of data is read, so a
+    forged header or size costs nothing.
+    """
+    with archive.open(info) as stream:
+        dtype, fortran, declared, offset = _npy_header(stream, name, path)
+        if dtype.kind not in kinds or (dtype.kind == "f" and dtype.itemsize > 8):
+            if dtype.hasobject:
+                raise CalibrationFileError("not a picamcal calibration file (it holds Python objects)", path)
+            raise CalibrationFileError(
+                f"calibration array {name!r} has {_dtype_name(dtype)}, expected {_KIND_NAMES[kinds]}", path
+            )
+        if name == "metadata" and dtype.itemsize > 4 * _MAX_RECORD_CHARS:
+            raise CalibrationFileError(f"the calibration record is over {_MAX_RECORD_CHARS} characters: corrupt", path)
+        if declared != shape:
+            raise CalibrationFileError(f"calibration array {name!r} has shape {declared}, expected {shape}", path)
+        nbytes = dtype.itemsize * math.prod(shape)
+        if info.file_size != offset + nbytes:
+            raise CalibrationFileError(
+                f"calibration array {name!r} declares {info.file_size} bytes, its header {offset + nbytes}: corrupt",
+                path,
+            )
+        data = stream.read(nbytes)
+    if len(data) != nbytes:
+        raise CalibrationFileError(f"calibration array {name!r} is cut short", path)
+    array = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
+    return array.astype(dtype.newbyteorder("="), order="C")
+
+
+def _npy_header(stream: Any, name: str, path: Path) -> tuple[np.dtype, bool, tuple[int, ...], int]:
+    """(dtype, fortran order, shape, data offset) of a ``.npy`` stream, parsed without numpy's header reader.
+
+    numpy's own raises errors of many types (tokenize.TokenError for a header cut mid-way) and allocates whatever
+    the shape says; here every problem is a CalibrationFileError and nothing is allocated.
+    """
+
+    def corrupt(problem: str) -> CalibrationFileError:
+        return CalibrationFileError(f"calibration array {name!r} {problem}: corrupt", path)
+
+    prefix = stream.read(8)
+    if len(prefix) < 8 or not prefix.startswith(_NPY_MAGIC):
+        raise corrupt("is not a .npy array")
+    size_bytes = {1: 2, 2: 4, 3: 4}.get(prefix[6])
+    if size_bytes is None:
+        raise corrupt(f"is a .npy array of unknown version {prefix[6]}")
+    length = int.from_bytes(stream.read(size_bytes), "little")
+    if length > _MAX_NPY_HEADER:
+        raise corrupt(f"has a header of {length} bytes")
+    raw = stream.read(length)
+    if len(raw) != length:
+        raise corrupt("has a header cut short")
+    try:
+        header = ast.literal_eval(raw.decode("utf-8" if prefix[6] == 3 else "latin-1"))
+    except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError, UnicodeDecodeError):
+        raise corrupt("has an unreadable header") from None
+    if not isinstance(header, dict) or set(header) != {"descr", "shape", "fortran_order"}:
+        raise corrupt("has a malformed header")
+    shape, fortran, descr = header["shape"], header["fortran_order"], header["descr"]
+    if not isinstance(shape, tuple) or not all(type(n) is int and n >= 0 for n in shape) or type(fortran) is not bool:
+        raise corrupt("has a malformed header")
+    if not isinstance(descr, str):
+        raise CalibrationFileError(f"calibration array {name!r} is a structured array, not a field", path)
+    try:
+        dtype = np.dtype(descr)
+    except (TypeError, ValueError):
+        raise corrupt(f"has an unknown dtype {descr[:40]!r}") from None
+    return dtype, fortran, shape, 8 + size_bytes + length
+
+
+def _dtype_name(dtype: np.dtype) -> str:
+    return f"complex values ({dtype})" if dtype.kind == "c" else f"dtype {dtype}"
 
 
 def _expected_shapes(kind: str, nby: int, nbx: int) -> dict[str, tuple[int, ...]]:
@@ -352,30 +522,101 @@ def _expected_shapes(kind: str, nby: int, nbx: int) -> dict[str, tuple[int, ...]
     return expected if kind == "full" else {name: expected[name] for name in FLAT_ARRAYS}
 
 
-def _validate(arrays: dict[str, np.ndarray], meta: dict[str, Any], path: Path) -> None:
-    try:
-        nby = -(-int(meta["height"]) // int(meta["bin_size"]))
-        nbx = -(-int(meta["width"]) // int(meta["bin_size"]))
-        str(meta["pattern"])
-        meta["centre_region"]
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CalibrationFileError(f"calibration record lacks {exc}", path) from None
+def _check_record(meta: Any, path: Path | None, error: type[PicamcalError]) -> tuple[str, int, int]:
+    """Check the record's keys and JSON types; return the kind and the number of bins (rows, columns)."""
+    fields = Fields(path, error, "a usable calibration", "calibrate again")
+    fields.mapping(meta, "the record", ("pattern", "width", "height", "bin_size", "centre_region", "inputs"))
     kind = meta.get("kind", "full")
-    if kind not in KINDS:
-        raise CalibrationFileError(f"unknown calibration kind {kind!r} (expected {' or '.join(KINDS)})", path)
+    if not isinstance(kind, str) or kind not in KINDS:
+        shown = repr(kind[:40]) if isinstance(kind, str) else type(kind).__name__
+        raise error(f"unknown calibration kind {shown} (expected {' or '.join(KINDS)})", path)
+    width = fields.number(meta["width"], "record 'width'", integer=True, positive=True)
+    height = fields.number(meta["height"], "record 'height'", integer=True, positive=True)
+    try:
+        check_size(path or "calibration", width, height)
+    except RawFormatError as exc:
+        raise error(f"not a usable calibration: the record {exc.problem}", path) from None
+    bin_size = fields.number(meta["bin_size"], "record 'bin_size'", integer=True, minimum=2)
+    if bin_size % 2:
+        fields.fail("record 'bin_size'", f"must be even, not {bin_size}")
+    fields.text(meta["pattern"], "record 'pattern'", PATTERNS)
+    nby, nbx = -(-height // bin_size), -(-width // bin_size)
+    y0, y1, x0, x1 = fields.numbers(meta["centre_region"], "record 'centre_region'", 4, integer=True, minimum=0)
+    if not (y0 < y1 <= nby and x0 < x1 <= nbx):
+        fields.fail("record 'centre_region'", f"{[y0, y1, x0, x1]} is not a region of the {nby} x {nbx} bins")
+    if meta.get("sensor") is not None:
+        fields.text(meta["sensor"], "record 'sensor'")
+    for key in ("software_version", "created", "black_level_source"):
+        if key in meta:
+            fields.text(meta[key], f"record {key!r}")
+    black = fields.numbers(meta.get("black_level", [0, 0, 0, 0]), "record 'black_level'", 4, minimum=0)
+    if "white_level" in meta:
+        fields.number(meta["white_level"], "record 'white_level'", minimum=max(black) + 1)
+    if "bit_depth" in meta:
+        fields.number(meta["bit_depth"], "record 'bit_depth'", integer=True, minimum=1, maximum=32)
+    for key in ("smoothing", "ill_conditioned_bins"):
+        if key in meta:
+            fields.number(meta[key], f"record {key!r}", minimum=0)
+    for i, entry in enumerate(fields.items(meta["inputs"], "record 'inputs'")):
+        _check_input(fields, entry, f"record 'inputs'[{i}]")
+    if "in_situ" in meta:
+        fields.mapping(meta["in_situ"], "record 'in_situ'")
+    return kind, nby, nbx
+
+
+def _check_input(fields: Fields, entry: Any, where: str) -> None:
+    """One ``inputs`` entry: the role, and the types of what reports and summaries show."""
+    fields.mapping(entry, where, ("role",))
+    fields.text(entry["role"], f"{where}.role")
+    for key in ("name", "sha256", "format"):
+        if key in entry and entry[key] is not None:
+            fields.text(entry[key], f"{where}.{key}")
+    for key in ("clipped_fraction", "median_fraction", "p99_fraction", "temporal_noise_dn", "averaged_noise_dn"):
+        if key in entry and entry[key] is not None:
+            fields.number(entry[key], f"{where}.{key}")
+    count = fields.number(entry.get("frame_count", 1), f"{where}.frame_count", integer=True, minimum=1)
+    if count > 1:
+        for key in ("temporal_noise_dn", "averaged_noise_dn"):
+            fields.number(entry.get(key), f"{where}.{key}")
+    for k, frame in enumerate(fields.items(entry.get("frames", []), f"{where}.frames")):
+        fields.mapping(frame, f"{where}.frames[{k}]")
+        if "name" in frame:
+            fields.text(frame["name"], f"{where}.frames[{k}].name")
+
+
+def _validate(arrays: Any, meta: Any, path: Path | None, error: type[PicamcalError] = CalibrationFileError) -> None:
+    """Check a calibration's record and fields: shapes that agree with the record, real finite values, and a
+    positive white (a calibration that passes corrects to finite images)."""
+    kind, nby, nbx = _check_record(meta, path, error)
+    if not isinstance(arrays, dict):
+        raise error(f"the calibration's arrays must be a dict, not {type(arrays).__name__}", path)
     expected = _expected_shapes(kind, nby, nbx)
     for name, shape in expected.items():
         if name not in arrays:
-            raise CalibrationFileError(f"calibration lacks the array {name!r}", path)
-        if arrays[name].shape != shape:
-            raise CalibrationFileError(
-                f"calibration array {name!r} has shape {arrays[name].shape}, expected {shape}", path
+            raise error(f"calibration lacks the array {name!r}", path)
+        array = arrays[name]
+        if not isinstance(array, np.ndarray):
+            raise error(f"calibration array {name!r} is a {type(array).__name__}, not an array", path)
+        wanted = "b" if name in _BOOL_ARRAYS else "f"
+        if array.dtype.kind != wanted or array.dtype.itemsize > 8:
+            raise error(
+                f"calibration array {name!r} has {_dtype_name(array.dtype)}, expected {_KIND_NAMES[wanted]}", path
             )
-        if arrays[name].dtype != bool and not np.all(np.isfinite(arrays[name])):
-            raise CalibrationFileError(f"calibration array {name!r} holds non-finite values", path)
+        if array.shape != shape:
+            raise error(f"calibration array {name!r} has shape {array.shape}, expected {shape}", path)
+        if wanted == "f" and not np.all(np.isfinite(array)):
+            raise error(f"calibration array {name!r} holds non-finite values (NaN or infinity)", path)
+        positive = array[0] if name == "site_responses" else array if name in _POSITIVE_ARRAYS else None
+        if positive is not None and not np.all(positive > 0):
+            count = int(np.count_nonzero(~(positive > 0)))
+            which = "the white's responses" if name == "site_responses" else "values"
+            raise error(
+                f"calibration array {name!r} holds {count} {which} <= 0: a white response or gain must be positive",
+                path,
+            )
     extra = sorted(set(arrays) & (set(ARRAYS) | set(GLOBAL_ARRAYS)) - set(expected))
     if extra:
-        raise CalibrationFileError(f"a {kind} calibration holds {', '.join(map(repr, extra))}: inconsistent", path)
+        raise error(f"a {kind} calibration holds {', '.join(map(repr, extra))}: inconsistent", path)
 
 
 def is_calibration_file(path: str | os.PathLike[str]) -> bool:

@@ -6,10 +6,14 @@ line on stderr and exit status 2, here in :func:`main` and nowhere else.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import math
+import os
 import sys
+import tempfile
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -17,6 +21,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
 from ._atomic import atomic_path, refuse_foreign, refuse_inputs_as_output
 from ._version import __version__
@@ -38,6 +43,10 @@ BlackOption = Annotated[
 ]
 
 
+#: No raw format holds more than 16 bits, so no black level reaches 2**16 DN.
+_MAX_BLACK_LEVEL = 65535
+
+
 def _black_level(text: str | None) -> list[float] | None:
     if text is None:
         return None
@@ -47,8 +56,55 @@ def _black_level(text: str | None) -> list[float] | None:
         raise typer.BadParameter(f"{text!r} is not one number or four", param_hint="--black-level") from None
     if len(values) not in (1, 4):
         raise typer.BadParameter("give one value or four (one per 2x2 site)", param_hint="--black-level")
+    if not all(math.isfinite(v) and 0 <= v <= _MAX_BLACK_LEVEL for v in values):
+        raise typer.BadParameter(
+            f"{text!r}: each level must be a number from 0 to {_MAX_BLACK_LEVEL} DN (no raw format has more than 16 "
+            "bits)",
+            param_hint="--black-level",
+        )
     return values
 
+
+def _in_range(
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    above: bool = False,
+    below: bool = False,
+    unit: str = "",
+    why: str = "",
+) -> Callable[[Any], Any]:
+    """A typer callback refusing a number outside ``low``..``high`` (``above``/``below``: the bound itself excluded).
+
+    NaN and infinities are always refused; click's own ranges let NaN through. The message names the value, the
+    accepted range and, with ``why``, the reason for it.
+    """
+    if low is not None and high is not None:
+        text = f"{'more than' if above else 'from'} {low:g} {'and less than' if below else 'to'} {high:g}"
+    elif low is not None:
+        text = f"more than {low:g}" if above else f"{low:g} or more"
+    else:
+        text = f"less than {high:g}" if below else f"{high:g} or less"
+    accepted = f"{text}{unit}" + (f" ({why})" if why else "")
+
+    def check(value: Any) -> Any:
+        for number in value if isinstance(value, tuple) else () if value is None else (value,):
+            fits = math.isfinite(number)
+            fits = fits and (low is None or (number > low if above else number >= low))
+            fits = fits and (high is None or (number < high if below else number <= high))
+            if not fits:
+                raise typer.BadParameter(f"{number:g} is outside the accepted range, {accepted}")
+        return value
+
+    return check
+
+
+#: libcamera's Raspberry Pi IPA takes ColourGains from 0 to 32 (src/ipa/rpi/common/ipa_base.cpp).
+_MAX_COLOUR_GAIN = 32
+#: More worker processes than this per core only cost memory (each holds a frame and the calibration).
+_MAX_WORKERS_PER_CORE = 4
+#: Colour temperatures of real light sources, from candle light (about 1900 K) to a clear blue sky (10000 K and more).
+_COLOUR_TEMPERATURE = _in_range(1000, 20000, unit=" K", why="the colour temperature of a light source")
 
 RawFormatOption = Annotated[
     str | None,
@@ -60,10 +116,16 @@ RawFormatOption = Annotated[
 ]
 RawSizeOption = Annotated[str | None, typer.Option("--size", help="With --raw-format: WIDTHxHEIGHT of a frame.")]
 StrideOption = Annotated[
-    int | None, typer.Option("--stride", help="With --raw-format: bytes per row (default: libcamera's alignment).")
+    int | None,
+    typer.Option(
+        "--stride", help="With --raw-format: bytes per row (default: libcamera's alignment).", callback=_in_range(1)
+    ),
 ]
 FrameOption = Annotated[
-    int | None, typer.Option("--frame", help="With --raw-format: the frame of a multi-frame dump (0 = the first).")
+    int | None,
+    typer.Option(
+        "--frame", help="With --raw-format: the frame of a multi-frame dump (0 = the first).", callback=_in_range(0)
+    ),
 ]
 RawSensorOption = Annotated[
     str | None, typer.Option("--sensor", help="The sensor, for files that do not say (headless dumps).")
@@ -125,6 +187,7 @@ def _progress() -> Progress:
         TimeElapsedColumn(),
         console=console,
         transient=True,
+        disable=not console.is_terminal,  # off a terminal, rich would leave an empty line on stderr
     )
 
 
@@ -167,7 +230,14 @@ def calibrate_cmd(
         typer.Option(help="In situ: take the unmixing from this jig calibration; only --white (and --black) needed."),
     ] = None,
     bin_size: Annotated[int, typer.Option(help="Bin edge in sensor pixels (even).")] = 16,
-    smoothing: Annotated[float, typer.Option(help="Gaussian smoothing of the fields, in bins (0 = none).")] = 0.0,
+    smoothing: Annotated[
+        float,
+        typer.Option(
+            help="Gaussian smoothing of the fields, in bins (0 = none; at most a quarter of the bin grid's shorter "
+            "side).",
+            callback=_in_range(0, unit=" bins"),
+        ),
+    ] = 0.0,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
     raw_format: RawFormatOption = None,
@@ -295,7 +365,16 @@ def correct_cmd(
     frame: FrameOption = None,
     sensor: RawSensorOption = None,
     workers: Annotated[
-        int | None, typer.Option(help="Worker processes (default: one per core; 0: no pool, work in this process).")
+        int | None,
+        typer.Option(
+            help="Worker processes (default: one per core; 0: no pool, work in this process).",
+            callback=_in_range(
+                0,
+                _MAX_WORKERS_PER_CORE * (os.cpu_count() or 1),
+                why=f"{_MAX_WORKERS_PER_CORE} per core: more "
+                "processes than cores only add memory, a frame and the calibration each",
+            ),
+        ),
     ] = None,
     scheduler: Annotated[
         str | None, typer.Option(help="Run on this dask.distributed scheduler instead (tcp://host:port).")
@@ -333,8 +412,12 @@ def correct_cmd(
         raise typer.BadParameter("--binned is for raw images")
     if (out is None) == (zarr_path is None):
         raise typer.BadParameter("give --out FOLDER for image files, or --zarr STACK.zarr for one stack")
-    if workers is not None and (workers < 0 or scheduler is not None):
-        raise typer.BadParameter("0 or more; not with --scheduler (the cluster has its own)", param_hint="--workers")
+    if workers is not None and scheduler is not None:
+        raise typer.BadParameter("not with --scheduler (the cluster has its own)", param_hint="--workers")
+    if mosaic is not None and zarr_path is None:
+        raise typer.BadParameter(
+            "a mosaic is a tiling of one --zarr stack: give --zarr STACK.zarr", param_hint="--mosaic"
+        )
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -344,6 +427,7 @@ def correct_cmd(
         TimeRemainingColumn(),
         console=console,
         transient=True,
+        disable=not console.is_terminal,  # off a terminal, rich would leave an empty line on stderr
     )
     bar: dict = {}
 
@@ -425,7 +509,7 @@ def _parse_size(size: str | None, option: str = "--size") -> tuple[int, int] | N
     except ValueError:
         raise typer.BadParameter(f"{size!r} is not WIDTHxHEIGHT", param_hint=option) from None
     if w < 16 or h < 16 or w % 2 or h % 2:
-        raise typer.BadParameter("width and height must be even and at least 16", param_hint=option)
+        raise typer.BadParameter(f"{size!r}: width and height must be even and at least 16", param_hint=option)
     return w, h
 
 
@@ -478,7 +562,9 @@ def export_tuning_cmd(
         typer.Option(help="Tuning file to start from (default: the sensor's stock file, for --target)."),
     ] = None,
     target: Annotated[str, typer.Option(help="Without --base: vc4 (Pi 4 and earlier), pisp (Pi 5) or both.")] = "both",
-    ct: Annotated[int, typer.Option(help="Colour temperature of the table entry, kelvin.")] = 4500,
+    ct: Annotated[
+        int, typer.Option(help="Colour temperature of the table entry, kelvin.", callback=_COLOUR_TEMPERATURE)
+    ] = 4500,
     luminance_strength: Annotated[
         float, typer.Option(help="libcamera luminance_strength (1 = full correction).")
     ] = 1.0,
@@ -593,7 +679,10 @@ def apply_tuning_cmd(
     sensor_size: Annotated[
         str | None, typer.Option(help="Full sensor WIDTHxHEIGHT (default: the sensor registry's, or the image's).")
     ] = None,
-    ct: Annotated[float | None, typer.Option(help="Colour temperature for the tables (default: the file's).")] = None,
+    ct: Annotated[
+        float | None,
+        typer.Option(help="Colour temperature for the tables (default: the file's).", callback=_COLOUR_TEMPERATURE),
+    ] = None,
     pattern: PatternOption = None,
     black_level: BlackOption = None,
     raw_format: RawFormatOption = None,
@@ -607,18 +696,36 @@ def apply_tuning_cmd(
     from .export.isp import apply_tuning, full_sensor_size, mode_for_image
     from .output import is_picamcal_output, write_rgb_tiff
 
-    tuning = _load_tuning(tuning_file)
-    headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
-    raw = _reader(pattern, black_level, **headless)(image)
+    gains = _numbers(colour_gains, 2, "--colour-gains")
+    if gains is not None and not all(0 < g <= _MAX_COLOUR_GAIN for g in gains):
+        raise typer.BadParameter(
+            f"{colour_gains!r}: each gain must be more than 0 and at most {_MAX_COLOUR_GAIN} (libcamera's range)",
+            param_hint="--colour-gains",
+        )
+    crop = _numbers(sensor_crop, 4, "--sensor-crop")
+    if crop is not None and not (
+        all(math.isfinite(v) and v == int(v) for v in crop) and min(crop[:2]) >= 0 and min(crop[2:]) > 0
+    ):
+        raise typer.BadParameter(
+            f"{sensor_crop!r}: X and Y must be whole numbers, 0 or more, and WIDTH and HEIGHT whole numbers above 0",
+            param_hint="--sensor-crop",
+        )
+    given_size = _parse_size(sensor_size, "--sensor-size")
     refuse_inputs_as_output(out, [image, tuning_file])
     if out.exists() and not overwrite:
         raise OutputError("exists already (use --overwrite to replace it)", out)
     refuse_foreign(out, is_picamcal_output, "an image picamcal wrote")
-    gains = _numbers(colour_gains, 2, "--colour-gains")
-    crop = _numbers(sensor_crop, 4, "--sensor-crop")
-    full = _parse_size(sensor_size, "--sensor-size") if sensor_size is not None else full_sensor_size(raw)
+    tuning = _load_tuning(tuning_file)
+    headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
+    raw = _reader(pattern, black_level, **headless)(image)
+    full = given_size or full_sensor_size(raw)
     mode = mode_for_image(full, (raw.width, raw.height), tuple(int(v) for v in crop) if crop else None)
-    rgb = apply_tuning(raw, tuning, colour_gains=gains, ccm=ccm, mode=mode, ct=ct)
+    try:
+        rgb = apply_tuning(raw, tuning, colour_gains=gains, ccm=ccm, mode=mode, ct=ct)
+    except PicamcalError as exc:
+        if exc.path is None:  # a problem with the tuning's content: the tuning dict does not know its file
+            raise type(exc)(exc.problem, tuning_file) from None
+        raise
     info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm}
     write_rgb_tiff(out, rgb, info, overwrite=overwrite)
     console.print(f"wrote {out}")
@@ -651,7 +758,8 @@ def inspect_cmd(
     """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong.
 
     Every file is listed, also those that are not images (sidecars, calibrations) and those that cannot be read
-    (with the reason); the exit status is 1 if any could not be read.
+    (with the reason); the exit status is 1 if any could not be read. One file that cannot be read is one error
+    line (exit status 2), as in every other command.
     """
     import json
     import warnings
@@ -669,8 +777,10 @@ def inspect_cmd(
         ]
         records.append(record)
     unreadable = [r for r in records if not r["readable"]]
+    if len(files) == 1 and not files[0].is_dir() and unreadable:
+        raise PicamcalError(unreadable[0]["error"], unreadable[0].get("error_path", files[0]))
     if as_json:
-        print(json.dumps(_json_safe(records), indent=2))
+        print(json.dumps(_json_safe(records), indent=2, default=str))
     else:
         _print_inspection(records)
     if unreadable:
@@ -678,8 +788,8 @@ def inspect_cmd(
 
 
 def _json_safe(value: Any) -> Any:
-    """Plain JSON: an unknown black level (NaN) becomes null, as JSON has no NaN."""
-    if isinstance(value, float) and value != value:
+    """Plain JSON: an unknown black level (NaN), or any number that is not finite, becomes null, as JSON has none."""
+    if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
         return {k: _json_safe(v) for k, v in value.items()}
@@ -696,7 +806,7 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
         table.add_column(heading)
     for r in records:
         if "width" not in r:  # not an image: a sidecar, a calibration, or unreadable
-            table.add_row(Path(r["path"]).name, r["format"] if r["readable"] else "unreadable")
+            table.add_row(Text(Path(r["path"]).name), Text(r["format"] if r["readable"] else "unreadable"))
             continue
         row = [
             Path(r["path"]).name,
@@ -704,13 +814,15 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
             r.get("sensor") or ("?" if r["raw"] else "-"),
             f"{r['width']}x{r['height']}",
             r.get("pattern", "-"),
-            str(r["bit_depth"]),
+            r["bit_depth"],
             _levels(r.get("black_level")),
-            str(r.get("white_level", "-")),
-            f"{1e3 * r['exposure_time_s']:.3g} ms" if r.get("exposure_time_s") else "-",
-            f"{r['analogue_gain']:.3g}" if r.get("analogue_gain") else "-",
+            r.get("white_level", "-"),
+            _figure(r.get("exposure_time_s"), 1e3, " ms"),
+            _figure(r.get("analogue_gain")),
+            *([r.get("frames", "-")] if frames else []),
         ]
-        table.add_row(*row, *([str(r.get("frames", "-"))] if frames else []))
+        # Text, not markup: a file's name or metadata may hold brackets that rich would take for markup.
+        table.add_row(*(Text(str(cell)) for cell in row))
     stdout = _stdout()
     stdout.print(table)
     for r in records:
@@ -735,6 +847,15 @@ def _levels(levels: list[float] | None) -> str:
     return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
 
 
+def _figure(value: Any, scale: float = 1.0, unit: str = "") -> str:
+    """A number of a file's metadata as the table shows it: "-" when absent or zero, as it is when not a number."""
+    if not value:
+        return "-"
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f"{scale * value:.3g}{unit}"
+    return str(value)
+
+
 @app.command("target")
 def target_cmd(
     out: Annotated[Path, typer.Option("--out", "-o", help="TARGET.png or TARGET.pdf; the layout goes to TARGET.json.")],
@@ -744,7 +865,7 @@ def target_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
 ) -> None:
     """Write the colour-wheel test target (PNG to show full-screen, or PDF to print) and its layout."""
-    from .target import save_target
+    from .target import is_target_file, save_target
 
     width, height = _parse_size(size) or (1920, 1080)
     if out.suffix.lower() not in (".png", ".pdf"):
@@ -752,7 +873,8 @@ def target_cmd(
     for path in (out, out.with_suffix(".json")):
         if path.exists() and not overwrite:
             raise OutputError("exists already (use --overwrite to replace it)", path)
-    image, layout = save_target(out, width, height)
+        refuse_foreign(path, is_target_file, "a target picamcal wrote")
+    image, layout = save_target(out, width, height, overwrite=overwrite)
     console.print(f"wrote {image} and its layout {layout}")
 
 
@@ -783,7 +905,6 @@ def analyse_cmd(
     for path in outputs:
         if path.exists() and not overwrite:
             raise OutputError("exists already (use --overwrite to replace it)", path)
-    out.mkdir(parents=True, exist_ok=True)
     table = Table(title="CIEDE2000 of the wheels against the centre wheel")
     for heading in ("image", "mode", "max", "mean", "saturation"):
         table.add_column(heading)
@@ -797,6 +918,10 @@ def analyse_cmd(
             except PicamcalError as exc:
                 raise PicamcalError(exc.problem, image) from None
             result = analyse(by_mode, found)
+            try:  # only now: an image that cannot be analysed leaves no folder behind
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
             for mode in by_mode:
                 polar_plot(result[mode], out / f"{image.stem}_{mode}_polar.png", title=f"{image.name}: {mode}")
                 summary = result[mode].get("summary", result[mode])
@@ -824,7 +949,19 @@ def report_cmd(
     ] = None,
     layout: Annotated[Path | None, typer.Option(help="The target's layout (TARGET.json).")] = None,
     cra: Annotated[
-        float | None, typer.Option(help="Chief ray angle of the lenslets at the sensor corner, degrees (for tilt).")
+        float | None,
+        typer.Option(
+            help="Chief ray angle of the lenslets at the sensor corner, degrees (for tilt).",
+            callback=_in_range(
+                0,
+                90,
+                above=True,
+                below=True,
+                unit=" degrees",
+                why="the tilt is the vignetting centre's offset times tan(CRA): 0 is a sensor without lenslet shift, "
+                "whose vignetting centre says nothing about tilt, and 90 is a ray along the sensor",
+            ),
+        ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing report.")] = False,
 ) -> None:
@@ -848,14 +985,9 @@ def report_cmd(
 
 
 def _read_json(path: Path) -> dict:
-    import json
+    from .analysis.wheels import read_layout
 
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise PicamcalError("no such file", path) from None
-    except (OSError, ValueError) as exc:
-        raise PicamcalError(f"not a readable JSON file ({exc})", path) from exc
+    return read_layout(path)
 
 
 @app.command("acquire")
@@ -870,13 +1002,25 @@ def acquire_cmd(
         typer.Option(help="An extra image at the same settings, e.g. target; asked for before each (repeatable)."),
     ] = None,
     target_fraction: Annotated[
-        float, typer.Option(help="Where the white's 99.9th percentile should land, as a fraction of full scale.")
+        float,
+        typer.Option(
+            help="Where the white's 99.9th percentile should land, as a fraction of full scale.",
+            callback=_in_range(0, 1, above=True, below=True),
+        ),
     ] = 0.8,
-    settle: Annotated[float, typer.Option(help="Seconds to wait after changing the light.")] = 0.5,
-    max_exposure: Annotated[float, typer.Option(help="Longest exposure time to use, in seconds.")] = 1.0,
+    settle: Annotated[
+        float,
+        typer.Option(help="Seconds to wait after changing the light.", callback=_in_range(0, 600, unit=" s")),
+    ] = 0.5,
+    max_exposure: Annotated[
+        float,
+        typer.Option(
+            help="Longest exposure time to use, in seconds.", callback=_in_range(0, 3600, above=True, unit=" s")
+        ),
+    ] = 1.0,
     sensor: Annotated[str, typer.Option(help="Simulated sensor (--camera sim).")] = "imx219",
     size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
-    seed: Annotated[int, typer.Option(help="Random seed of the simulated camera.")] = 0,
+    seed: Annotated[int, typer.Option(help="Random seed of the simulated camera.", callback=_in_range(0))] = 0,
 ) -> None:
     """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black and extras."""
     from .acquire.acquisition import acquire, open_rig
@@ -917,13 +1061,10 @@ def demo_cmd(
 ) -> None:
     """Run the whole method on the simulated camera and print the figures before and after."""
     from .demo import STEPS, run_demo
-    from .sensors import get_sensor
     from .simulate import RAW_WRITERS
 
     fmt = _choice(fmt, list(RAW_WRITERS), "--format")
-    get_sensor(sensor)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise OutputError("folder exists and is not empty (use --overwrite to write into it)", out)
+    refuse_inputs_as_output(out, tuning_base or ())
     with _progress() as progress:
         task = progress.add_task("demo", total=len(STEPS))
 
@@ -931,7 +1072,14 @@ def demo_cmd(
             progress.update(task, description=description, completed=STEPS.index(description))
 
         figures = run_demo(
-            out, sensor, size=_parse_size(size), seed=seed, fmt=fmt, tuning_bases=tuning_base or (), progress=step
+            out,
+            sensor,
+            size=_parse_size(size),
+            seed=seed,
+            fmt=fmt,
+            tuning_bases=tuning_base or (),
+            progress=step,
+            overwrite=overwrite,
         )
         progress.update(task, description="done", completed=len(STEPS))
     size_text = f"{figures['size'][0]}x{figures['size'][1]}"
@@ -964,8 +1112,68 @@ def demo_cmd(
     stdout.print(f"The report: {out / 'report' / 'index.html'}")
 
 
+#: picamcal's warnings of this command, and the lines libraries logged: printed when it ends well, and when it
+#: fails, the warnings folded into the one error line (the libraries' lines are their own view of the same problem).
+_held_warnings: list[str] = []
+_held_log: list[str] = []
+
+
 def _warn(message, category, filename, lineno, file=None, line=None) -> None:
     if issubclass(category, PicamcalWarning):
+        _held_warnings.append(str(message))
+
+
+class _HoldLog(logging.Handler):
+    def emit(self, record: logging.LogRecord) -> None:
+        _held_log.append(f"{record.name}: {record.getMessage()}")
+
+
+@contextlib.contextmanager
+def _hold_native_stderr() -> Iterator[Callable[[], bytes]]:
+    """Catch what C libraries write straight to file descriptor 2 (LibRaw's "Unexpected end of file").
+
+    Descriptor 2 points at a temporary file while the command runs, and ``sys.stderr`` (picamcal's own lines,
+    rich's progress) at a duplicate of the real one. Yields a function that reads what was caught. Nothing changes
+    when ``sys.stderr`` is not descriptor 2 (a test capturing it).
+    """
+    try:
+        native = sys.stderr.fileno() == 2
+    except (AttributeError, OSError, ValueError):
+        native = False
+    if not native:
+        yield lambda: b""
+        return
+    sys.stderr.flush()
+    python_stderr = sys.stderr
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        sys.stderr = open(  # closed below, after descriptor 2 is restored
+            saved, "w", encoding=python_stderr.encoding, errors=python_stderr.errors, buffering=1, closefd=False
+        )
+
+        def caught() -> bytes:
+            held.seek(0)
+            return held.read()
+
+        try:
+            yield caught
+        finally:
+            sys.stderr.flush()
+            sys.stderr.close()
+            sys.stderr = python_stderr
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def _release_held(native: bytes) -> None:
+    """Print what was held back during a command that did not fail."""
+    sys.stderr.flush()
+    if native:
+        os.write(2, native)
+    for line in _held_log:
+        print(line, file=sys.stderr)
+    for message in _held_warnings:
         print(f"picamcal: warning: {message}", file=sys.stderr)
 
 
@@ -992,7 +1200,12 @@ def _spread_role_options(args: list[str]) -> list[str]:
 
 
 def _fail(message: str) -> None:
-    """The one error line every problem ends in (never wrapped, whatever the terminal), and exit status 2."""
+    """The one error line every problem ends in (never wrapped, whatever the terminal), and exit status 2.
+
+    Warnings given before the error are folded into it, so that the line stays one.
+    """
+    if _held_warnings:
+        message += f" (after {len(_held_warnings)} warning(s): {'; '.join(_held_warnings)})"
     print(f"picamcal: error: {' '.join(message.split())}", file=sys.stderr)
     sys.exit(2)
 
@@ -1005,19 +1218,29 @@ def main(argv: list[str] | None = None) -> None:
         from click import exceptions as click
 
     warnings.showwarning = _warn
+    _held_warnings.clear()
+    _held_log.clear()
     # picamcal says what is wrong with a file in its own one line; tifffile would log its own view of it too.
     logging.getLogger("tifffile").setLevel(logging.CRITICAL)
+    hold_log = _HoldLog(logging.WARNING)
+    logging.getLogger().addHandler(hold_log)
     args = _spread_role_options(list(sys.argv[1:] if argv is None else argv))
     try:
-        code = app(args=args, prog_name="picamcal", standalone_mode=False)
-    except click.UsageError as exc:
-        command = exc.ctx.command_path if exc.ctx is not None else "picamcal"
-        _fail(f"{exc.format_message().rstrip('.')} (see {command} --help)")
-    except click.ClickException as exc:
-        _fail(exc.format_message())
-    except typer.Abort:
-        print("picamcal: interrupted", file=sys.stderr)
-        sys.exit(130)
-    except PicamcalError as exc:
-        _fail(str(exc))
+        with _hold_native_stderr() as native:
+            try:
+                code = app(args=args, prog_name="picamcal", standalone_mode=False)
+            except click.UsageError as exc:
+                command = exc.ctx.command_path if exc.ctx is not None else "picamcal"
+                _fail(f"{exc.format_message().rstrip('.')} (see {command} --help)")
+            except click.ClickException as exc:
+                _fail(exc.format_message())
+            except typer.Abort:
+                _release_held(native())
+                print("picamcal: interrupted", file=sys.stderr)
+                sys.exit(130)
+            except PicamcalError as exc:
+                _fail(str(exc))
+            _release_held(native())
+    finally:
+        logging.getLogger().removeHandler(hold_log)
     sys.exit(code if isinstance(code, int) else 0)

@@ -17,10 +17,11 @@ from ._atomic import atomic_path
 from .calibrate import calibrate
 from .calibration import MODES, Calibration
 from .correct import correct
+from .errors import OutputError
 from .metrics import flatness, save_preview, wheel_figures
 from .raw import RawImage, read_raw
 from .report import write_report
-from .simulate import make_camera, simulate_references, simulate_run
+from .simulate import run_camera, simulate_references, simulate_run
 
 #: The steps run_demo reports, in order.
 STEPS = (
@@ -42,6 +43,7 @@ def run_demo(
     fmt: str = "dng",
     tuning_bases: Sequence[str | Path] = (),
     progress: Callable[[str], None] | None = None,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Simulate a calibration run, calibrate, correct the colour-wheel target in every mode and measure.
 
@@ -53,7 +55,7 @@ def run_demo(
     Parameters
     ----------
     out_dir : path
-        Output folder (created).
+        Output folder: created, or empty.
     sensor : str
         Simulated sensor (``ov5647``, ``imx219``, ``imx477``, ``imx708``).
     size : (width, height), optional
@@ -67,6 +69,9 @@ def run_demo(
         libcamera tuning files to write a static lens shading table into (one output per base).
     progress : callable, optional
         Called with the description of each step in :data:`STEPS` as it starts.
+    overwrite : bool
+        Write into a folder that is not empty: one an earlier demo wrote, or one that holds none of the demo's
+        file names (other files are never replaced).
 
     Returns
     -------
@@ -75,19 +80,34 @@ def run_demo(
         corner-vs-centre CIEDE2000 (max and mean), corner saturation relative to the centre, and the
         worst noise penalty.
 
+    Raises
+    ------
+    OutputError
+        The folder is not empty (without ``overwrite``), or holds files of the demo's names that it did not write.
+    PicamcalError
+        An argument out of range (:func:`picamcal.simulate.run_camera`) or a base that is not a tuning file; all
+        are checked before anything is written.
+
     Examples
     --------
     >>> figures = run_demo("demo-out", "imx219", size=(640, 480))  # doctest: +SKIP
     >>> figures["modes"]["centre"]["max_delta_e"] < 1.0  # doctest: +SKIP
     True
     """
+    from .export.tuning import load_tuning
+
     step = progress or (lambda _: None)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    camera = run_camera(sensor, size=size, seed=seed, fmt=fmt)
+    bases = [(Path(base), load_tuning(base)) for base in tuning_bases]
+    _check_folder(out, overwrite)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
 
     step(STEPS[0])
     paths = simulate_run(out / "raw", sensor, size=size, seed=seed, fmt=fmt, overwrite=True)
-    camera = make_camera(sensor, size=size)
     check_white = simulate_references(camera, seed=seed + 1000)["white"]
 
     step(STEPS[1])
@@ -115,7 +135,7 @@ def run_demo(
         save_preview(out / f"target_{mode}.png", rgb)
 
     step(STEPS[-2])
-    exports = _write_exports(cal, out, tuning_bases, check_white)
+    exports = _write_exports(cal, out, bases, check_white)
     figures = {
         "sensor": sensor,
         "size": [target.width, target.height],
@@ -138,20 +158,54 @@ def run_demo(
     return figures
 
 
-def _write_exports(cal: Calibration, out: Path, bases: Sequence[str | Path], white: RawImage) -> dict[str, Any]:
-    """The legacy table and one tuning file per base, with the flatness each gives an independent white."""
+#: Names the demo writes in its folder (besides ``tuning_<target>.json``); ``figures.json`` marks a demo's folder.
+_OUTPUTS = ("raw", "calibration.npz", *(f"target_{mode}.png" for mode in MODES), "lens_shading_legacy.npy")
+_RECORD = "figures.json"
+
+
+def _check_folder(out: Path, overwrite: bool) -> None:
+    """Refuse a folder that is not empty (without ``overwrite``), or that holds the demo's names but is no demo's."""
+    if out.exists() and not out.is_dir():
+        raise OutputError("is not a folder", out)
+    if not out.exists() or not any(out.iterdir()):
+        return
+    if not overwrite:
+        raise OutputError("folder exists and is not empty (use --overwrite to write into it)", out)
+    if _is_demo_record(out / _RECORD):
+        return
+    ours = [out / name for name in (*_OUTPUTS, _RECORD, "report")]
+    clash = [path for path in [*ours, *out.glob("tuning_*.json")] if path.exists() or path.is_symlink()]
+    if clash:
+        raise OutputError(
+            "exists in a folder that is not a picamcal demo's (it has no figures.json of one): --overwrite replaces "
+            "only what the demo wrote; choose another output folder",
+            clash[0],
+        )
+
+
+def _is_demo_record(path: Path) -> bool:
+    if not path.is_file() or path.is_symlink():
+        return False
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(record, dict) and "mode_meaning" in record and "modes" in record
+
+
+def _write_exports(cal: Calibration, out: Path, bases: Sequence[tuple[Path, dict]], white: RawImage) -> dict[str, Any]:
+    """The legacy table and one tuning file per (path, loaded tuning) base, with the flatness each gives a white."""
     from .bayer import bin_sites
     from .export.isp import apply_tuning
     from .export.legacy import apply_legacy_table, legacy_table, save_legacy_table
-    from .export.tuning import export_tuning, load_tuning, save_tuning, sensor_of_tuning_file
+    from .export.tuning import export_tuning, save_tuning, sensor_of_tuning_file
 
     exports: dict[str, Any] = {}
     table = legacy_table(cal)
     save_legacy_table(out / "lens_shading_legacy.npy", table, overwrite=True)
     legacy = bin_sites(apply_legacy_table(white, table), cal.bin_size)
     exports["lens_shading_legacy.npy"] = {"white_flatness_percent": float(100 * np.max(flatness(legacy)))}
-    for base in bases:
-        base_tuning = load_tuning(base)
+    for base, base_tuning in bases:
         tuning = export_tuning(cal, base_tuning, base_sensor=sensor_of_tuning_file(base))
         name = f"tuning_{tuning['target']}.json"
         save_tuning(out / name, tuning, overwrite=True)

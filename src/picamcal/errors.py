@@ -59,5 +59,17 @@ def closest(value: str, choices: Iterable[str], cutoff: float = 0.6) -> str | No
     return by_key[close[0]] if close else None
 
 
+def short(value: object, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for naming a bad value from a file in a one-line message.
+
+    Examples
+    --------
+    >>> short("x" * 100)[-5:], short(1.5)
+    ('xx...', '1.5')
+    """
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 class PicamcalWarning(UserWarning):
     """Something is suspicious but the result is still usable."""

@@ -7,6 +7,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .errors import PicamcalError, RawFormatError
 from .raw import RawImage, read_raw
 from .raw.processed import read_processed
@@ -42,7 +44,7 @@ def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> d
             "height": image.height,
             "bit_depth": image.bit_depth,
             "note": str(raw_error.problem),
-            **{k: image.metadata[k] for k in _METADATA_KEYS if k in image.metadata},
+            **{k: _plain(image.metadata[k]) for k in _METADATA_KEYS if k in image.metadata},
         }
     record: dict[str, Any] = {
         "path": str(path),
@@ -56,8 +58,28 @@ def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> d
         "black_level": list(raw.black_level),
         "white_level": raw.white_level,
     }
-    record.update({k: raw.metadata[k] for k in (*_METADATA_KEYS, "declared_pattern", "frames") if k in raw.metadata})
+    keys = (*_METADATA_KEYS, "declared_pattern", "frames")
+    record.update({k: _plain(raw.metadata[k]) for k in keys if k in raw.metadata})
     return record
+
+
+def _plain(value: Any) -> Any:
+    """A file's metadata value as plain JSON types (numbers, text, lists): what a file says is shown, whatever it is.
+
+    Examples
+    --------
+    >>> _plain([np.float32(0.5), b"RP_imx219"])
+    [0.5, "b'RP_imx219'"]
+    """
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, (np.generic, np.ndarray)):
+        return _plain(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    return str(value)
 
 
 _JSON_KINDS = {
@@ -132,7 +154,10 @@ def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dic
     try:
         return {**describe(path, read), "readable": True}
     except PicamcalError as exc:
-        return {"path": str(path), "format": "-", "raw": False, "readable": False, "error": exc.problem}
+        record = {"path": str(path), "format": "-", "raw": False, "readable": False, "error": exc.problem}
+        if exc.path not in (None, str(path)):  # the problem is in another file, e.g. the sidecar
+            record["error_path"] = exc.path
+        return record
 
 
 def files_of(items: list[Path]) -> list[Path]:

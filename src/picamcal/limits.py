@@ -83,10 +83,15 @@ of 100 MP (set PICAMCAL_MAX_PIXELS to read larger images)
     limit = max_pixels()
     if width * height > limit:
         raise RawFormatError(
-            f"declares an {what} of {width}x{height} pixels ({width * height / 1e6:.0f} MP), over the limit of "
-            f"{limit / 1e6:.0f} MP (set {MAX_PIXELS_VARIABLE} to read larger images)",
+            f"declares an {what} of {width}x{height} pixels ({_megapixels(width * height)}), over the limit of "
+            f"{_megapixels(limit)} (set {MAX_PIXELS_VARIABLE} to read larger images)",
             path,
         )
+
+
+def _megapixels(pixels: int) -> str:
+    """``pixels`` as megapixels for a message; exact below one, whatever its size (no float overflow)."""
+    return f"{pixels // 1_000_000} MP" if pixels >= 1_000_000 else f"{pixels} pixels"
 
 
 def require_regular_file(path: str | os.PathLike[str], error: type[PicamcalError] = RawFormatError) -> int:

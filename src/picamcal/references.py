@@ -55,7 +55,10 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     Raises
     ------
     CalibrationInputError
-        The folder is missing, has no white, or has some but not all of red, green and blue.
+        The folder is missing or cannot be listed, has no white, or has some but not all of red, green and blue.
+    AcquisitionError
+        The folder holds a ``manifest.json`` that is not a usable one (see
+        :func:`picamcal.acquire.acquisition.load_manifest`).
 
     Examples
     --------
@@ -71,8 +74,13 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
         from .acquire.acquisition import read_manifest
 
         return dict(read_manifest(folder))
+    try:
+        entries = sorted(folder.iterdir(), key=_natural)
+    except OSError as exc:
+        raise CalibrationInputError(f"cannot list the folder: {exc.strerror or exc}", folder) from None
     found: dict[str, list[Path]] = {}
-    for path in sorted(folder.iterdir(), key=_natural):
+    for path in entries:
+        # is_file follows links and is False for a FIFO, a device or a symlink loop: those are left out
         role = role_of(path.name) if path.suffix.lower() in RAW_SUFFIXES and path.is_file() else None
         if role and not (in_situ and role in COLOURS):
             found.setdefault(role, []).append(path)

@@ -59,6 +59,7 @@ from ._atomic import atomic_path
 from .bayer import bin_sites, sites_to_channels
 from .colour_wheel import SEGMENTS
 from .errors import OutputError, PicamcalError
+from .limits import MAX_PIXELS_VARIABLE, max_pixels
 from .raw.brcm import write_brcm
 from .raw.dng import write_dng
 from .raw.model import PATTERNS, RawImage, site_channels
@@ -75,6 +76,7 @@ __all__ = [
     "ground_truth",
     "make_camera",
     "render",
+    "run_camera",
     "simulate_references",
     "simulate_run",
     "simulate_target",
@@ -121,6 +123,9 @@ _ANALOGUE_GAIN = 1.0
 # Independent random streams of one run (numpy SeedSequence spawn keys).
 _DUST_STREAM = len(REFERENCES)
 _TARGET_STREAM = len(REFERENCES) + 1
+#: The most dust specks a white reference gets: far more than any real sensor shows, and each costs a blob of up
+#: to 250 x 250 pixels to render.
+MAX_DUST = 1000
 
 
 @dataclass(frozen=True)
@@ -329,6 +334,12 @@ def make_camera(
     width, height = (spec.width, spec.height) if size is None else (int(size[0]), int(size[1]))
     if width < 4 or height < 4 or width % 2 or height % 2:
         raise PicamcalError(f"the frame size must be even and at least 4x4 pixels, got {width}x{height}")
+    limit = max_pixels()
+    if width * height > limit:  # the simulator holds several float frames of this size: refuse before any
+        raise PicamcalError(
+            f"a simulated frame of {width}x{height} pixels ({width * height / 1e6:.0f} MP) is over the limit of "
+            f"{limit / 1e6:.0f} MP (set {MAX_PIXELS_VARIABLE} to simulate larger frames)"
+        )
     if not 0 < exposure <= 1:
         raise PicamcalError(f"exposure must be in (0, 1], got {exposure}")
     tilt_xy = (float(tilt[0]), float(tilt[1]))
@@ -561,8 +572,7 @@ def dust_specks(
     >>> sorted(speck), 4 <= speck["radius"] <= 25
     (['depth', 'radius', 'x', 'y'], True)
     """
-    if count < 0:
-        raise PicamcalError(f"the number of dust specks must be >= 0, got {count}")
+    _dust_count(count)
     rng = np.random.default_rng(rng)
     specks = []
     for _ in range(int(count)):
@@ -751,7 +761,20 @@ def wheel_scene(layout: Mapping[str, Any]) -> np.ndarray:
 
 def _stream(seed: int, index: int) -> np.random.Generator:
     """Independent random stream ``index`` of a run with this seed."""
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(index,)))
+    return np.random.default_rng(np.random.SeedSequence(_seed(seed), spawn_key=(index,)))
+
+
+def _dust_count(count: int) -> int:
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 0 <= count <= MAX_DUST:
+        raise PicamcalError(f"the number of dust specks must be a whole number from 0 to {MAX_DUST}, got {count!r}")
+    return int(count)
+
+
+def _seed(seed: int) -> int:
+    """``seed`` if numpy can seed with it: a whole number, 0 or more."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise PicamcalError(f"the seed must be a whole number, 0 or more, got {seed!r}")
+    return int(seed)
 
 
 def simulate_references(
@@ -859,6 +882,75 @@ def _write_json(path: Path, record: Mapping[str, Any], overwrite: bool) -> None:
         tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
 
 
+def run_camera(
+    sensor: str = "imx219",
+    *,
+    pattern: str | None = None,
+    size: tuple[int, int] | None = None,
+    tilt: tuple[float, float] = (0.0, 0.0),
+    seed: int = 0,
+    dust: int = 0,
+    fmt: str = "dng",
+) -> SimulatedCamera:
+    """The camera :func:`simulate_run` simulates, with every argument checked before anything is written.
+
+    Parameters
+    ----------
+    sensor, pattern, size, tilt
+        As :func:`make_camera`.
+    seed : int
+        Seed of the noise and dust: a whole number, 0 or more.
+    dust : int
+        Number of dust specks, 0 to :data:`MAX_DUST`.
+    fmt : str
+        A raw format of :data:`RAW_WRITERS`; ``"brcm"`` only at one of the sensor's legacy mode sizes.
+
+    Returns
+    -------
+    SimulatedCamera
+
+    Raises
+    ------
+    PicamcalError
+        Any argument out of range (a frame over the pixel limit of :func:`picamcal.limits.max_pixels` too).
+
+    Examples
+    --------
+    >>> run_camera("imx219", size=(320, 240), fmt="npz").width
+    320
+    >>> run_camera("imx219", size=(320, 240), seed=-1)
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: the seed must be a whole number, 0 or more, got -1
+    """
+    if fmt not in RAW_WRITERS:
+        raise PicamcalError(f"unknown raw format {fmt!r} (expected one of {', '.join(RAW_WRITERS)})")
+    _seed(seed)
+    _dust_count(dust)
+    camera = make_camera(sensor, pattern=pattern, size=size, tilt=tilt)
+    if fmt == "brcm" and not any(
+        (m.width, m.height, m.bit_depth) == (camera.width, camera.height, camera.bit_depth)
+        for m in get_sensor(sensor).legacy_modes
+    ):
+        modes = ", ".join(f"{m.width}x{m.height} {m.bit_depth}-bit" for m in get_sensor(sensor).legacy_modes)
+        raise PicamcalError(
+            f"the legacy JPEG+raw format has no {camera.width}x{camera.height} {camera.bit_depth}-bit mode for the "
+            f"{sensor} (modes: {modes or 'none'})"
+        )
+    return camera
+
+
+def _is_simulated_run(truth_json: Path) -> bool:
+    """Whether ``truth_json`` is the record :func:`simulate_run` writes (a regular file: a FIFO would block)."""
+    if not truth_json.is_file() or truth_json.is_symlink():
+        return False
+    try:
+        record = json.loads(truth_json.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(record, dict) and isinstance(record.get("optics"), dict) and "files" in record
+
+
 def simulate_run(
     out_dir: str | os.PathLike[str],
     sensor: str = "imx219",
@@ -899,7 +991,8 @@ def simulate_run(
         sensor's legacy mode sizes), picamera2's packed raw buffer as ``.npy`` with a JSON sidecar, or
         picamcal ``.npz``.
     overwrite : bool
-        Replace existing files; otherwise nothing is written if any output exists.
+        Replace the files of an earlier simulated run (a folder with its ``truth.json``); otherwise nothing is
+        written if any output exists. Files in a folder that is not a simulated run are never replaced.
 
     Returns
     -------
@@ -909,7 +1002,10 @@ def simulate_run(
     Raises
     ------
     OutputError
-        An output file exists already and ``overwrite`` is False, or the directory is not writable.
+        An output file exists already and ``overwrite`` is False or the folder is not a simulated run, or the
+        directory is not writable.
+    PicamcalError
+        An argument out of range (:func:`run_camera`).
 
     Examples
     --------
@@ -917,25 +1013,19 @@ def simulate_run(
     >>> paths["white"], paths["truth_json"]  # doctest: +SKIP
     (PosixPath('run1/white.dng'), PosixPath('run1/truth.json'))
     """
-    if fmt not in RAW_WRITERS:
-        raise PicamcalError(f"unknown raw format {fmt!r} (expected one of {', '.join(RAW_WRITERS)})")
+    camera = run_camera(sensor, pattern=pattern, size=size, tilt=tilt, seed=seed, dust=dust, fmt=fmt)
     writer, suffix = RAW_WRITERS[fmt]
     out = Path(out_dir)
     paths = {name: out / f"{name}{suffix}" for name in (*REFERENCES, "target")}
     paths.update(layout=out / "layout.json", truth_npz=out / "truth.npz", truth_json=out / "truth.json")
-    if not overwrite:
-        for path in paths.values():
-            if path.exists():
-                raise OutputError("exists already (use --overwrite to replace it)", path)
-    camera = make_camera(sensor, pattern=pattern, size=size, tilt=tilt)
-    if fmt == "brcm" and not any(
-        (m.width, m.height, m.bit_depth) == (camera.width, camera.height, camera.bit_depth)
-        for m in get_sensor(sensor).legacy_modes
-    ):
-        modes = ", ".join(f"{m.width}x{m.height} {m.bit_depth}-bit" for m in get_sensor(sensor).legacy_modes)
-        raise PicamcalError(
-            f"the legacy JPEG+raw format has no {camera.width}x{camera.height} {camera.bit_depth}-bit mode for the "
-            f"{sensor} (modes: {modes or 'none'})"
+    existing = [path for path in paths.values() if path.exists() or path.is_symlink()]
+    if existing and not overwrite:
+        raise OutputError("exists already (use --overwrite to replace it)", existing[0])
+    if existing and not _is_simulated_run(paths["truth_json"]):
+        raise OutputError(
+            "exists and the folder is not a simulated run (it has no truth.json of one): --overwrite replaces only "
+            "what picamcal simulated; choose another output folder",
+            existing[0],
         )
     truth = ground_truth(camera, bin_size=bin_size)
     try:

@@ -28,14 +28,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
+from PIL import Image, PngImagePlugin
 
 from ._atomic import atomic_path
 from .colour_wheel import SEGMENTS
 from .errors import PicamcalError
+from .limits import MAX_PIXELS_VARIABLE, max_pixels
 from .metrics import encode_srgb
 
-__all__ = ["render_target", "save_target", "target_layout"]
+__all__ = ["is_target_file", "render_target", "save_target", "target_layout"]
 
 
 # Wheel positions: (name, column, row) with columns and rows -1, 0, 1 for left/top, middle, right/bottom.
@@ -62,6 +63,9 @@ _DISC_OFFSET = 0.12  # the orientation disc's centre from the left edge (its y i
 _DISC_RADIUS = 0.015
 _MIN_SIZE = 64  # pixels, below which the marks are too small to find
 _PDF_PAGE_WIDTH_IN = 11.69  # A4 landscape: the PDF page is the target, this wide
+#: What the PNG's Software text and the PDF's Creator say, so that --overwrite knows a target it wrote.
+_CREATOR = "picamcal colour-wheel target"
+_PDF_TAIL = 1 << 16  # matplotlib writes the document information (Creator) after the image, at the end
 
 
 def target_layout(width: int = 1920, height: int = 1080) -> dict[str, Any]:
@@ -87,7 +91,8 @@ def target_layout(width: int = 1920, height: int = 1080) -> dict[str, Any]:
     Raises
     ------
     PicamcalError
-        If a side is shorter than 64 pixels.
+        If a side is shorter than 64 pixels, or the target has more pixels than
+        :func:`picamcal.limits.max_pixels` (rendering holds a few float copies of it).
 
     Examples
     --------
@@ -100,6 +105,12 @@ def target_layout(width: int = 1920, height: int = 1080) -> dict[str, Any]:
     width, height = int(width), int(height)
     if min(width, height) < _MIN_SIZE:
         raise PicamcalError(f"the target needs at least {_MIN_SIZE} x {_MIN_SIZE} pixels, got {width} x {height}")
+    limit = max_pixels()
+    if width * height > limit:
+        raise PicamcalError(
+            f"a target of {width}x{height} pixels ({width * height / 1e6:.0f} MP) is over the limit of "
+            f"{limit / 1e6:.0f} MP (set {MAX_PIXELS_VARIABLE} to render larger targets)"
+        )
     m = min(width, height)
     cx, cy = (width - 1) / 2, (height - 1) / 2
     margin_x = max(_WHEEL_MARGIN * width, _WHEEL_MARGIN_MIN * m)
@@ -217,7 +228,8 @@ def save_target(
     width, height : int, default 1920 and 1080
         Pixels of the target (the screen's resolution, or the print's dots).
     overwrite : bool, default True
-        Replace existing files; otherwise raise if either exists.
+        Replace existing files; otherwise raise if either exists (``picamcal target --overwrite`` replaces only
+        files :func:`is_target_file` recognises).
 
     Returns
     -------
@@ -247,7 +259,9 @@ def save_target(
     pixels = render_target(layout)
     with atomic_path(image_path, overwrite=overwrite) as tmp:
         if suffix == ".png":
-            Image.fromarray(pixels).save(tmp, format="PNG")
+            info = PngImagePlugin.PngInfo()
+            info.add_text("Software", _CREATOR)
+            Image.fromarray(pixels).save(tmp, format="PNG", pnginfo=info)
         else:
             _save_pdf(tmp, pixels)
     with atomic_path(layout_path, overwrite=overwrite) as tmp:
@@ -269,7 +283,44 @@ def _save_pdf(path: Path, pixels: np.ndarray) -> None:
     dpi = width / _PDF_PAGE_WIDTH_IN
     figure = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
     figure.figimage(pixels, resize=False)
-    figure.savefig(path, format="pdf", dpi=dpi)
+    figure.savefig(path, format="pdf", dpi=dpi, metadata={"Creator": _CREATOR})
+
+
+def is_target_file(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a target image (PNG or PDF) or layout that :func:`save_target` wrote.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     image_path, layout_path = save_target(Path(folder) / "wheels.png", 320, 240)
+    ...     is_target_file(image_path), is_target_file(layout_path), is_target_file(__file__)
+    (True, True, False)
+    """
+    path = Path(path)
+    if not path.is_file():  # a FIFO would block the read
+        return False
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        try:
+            layout = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError, RecursionError):
+            return False
+        return isinstance(layout, dict) and layout.get("units") == "pixels" and "fiducials" in layout
+    if suffix == ".png":
+        try:
+            with Image.open(path) as image:
+                return image.format == "PNG" and image.info.get("Software") == _CREATOR
+        except (OSError, ValueError, Image.DecompressionBombError):
+            return False
+    if suffix == ".pdf":
+        try:
+            with open(path, "rb") as f:
+                f.seek(max(0, f.seek(0, os.SEEK_END) - _PDF_TAIL))
+                return f"/Creator ({_CREATOR})".encode() in f.read()
+        except OSError:
+            return False
+    return False
 
 
 def _r(value: float) -> float:

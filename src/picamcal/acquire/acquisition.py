@@ -45,6 +45,7 @@ import numpy as np
 
 from .._atomic import atomic_path
 from .._files import json_default, sha256_file
+from .._json import Fields, read_json
 from .._version import __version__
 from ..bayer import sites_to_channels
 from ..calibrate import MAX_CLIPPED_FRACTION
@@ -243,10 +244,17 @@ def _write_json(path: Path, record: Mapping[str, Any]) -> None:
 def load_manifest(folder: str | os.PathLike[str]) -> dict[str, Any]:
     """Read and check the ``manifest.json`` of an acquisition folder.
 
+    Every value picamcal uses is checked: the format and version; ``camera`` (``kind``, ``sensor``, a ``size``
+    of two positive whole numbers) and ``illuminator`` (``kind``); ``settings`` (a positive exposure time in µs
+    and analogue gain, two positive colour gains); ``roles`` (distinct names of letters, digits, ``-`` and ``_``);
+    and ``entries`` (one per captured role, each a ``file`` that is a plain name in the folder and, where present,
+    a ``sha256``, the ``light`` as three 0..255 levels).
+
     Raises
     ------
     AcquisitionError
-        No manifest, or one that is corrupt or of another format or version.
+        No manifest, one that is not a regular file, not UTF-8 JSON, or of another format or version, or any value
+        of the wrong type, count or range; one line naming the file and the value.
 
     Examples
     --------
@@ -254,34 +262,59 @@ def load_manifest(folder: str | os.PathLike[str]) -> dict[str, Any]:
     {'exposure_time_us': 4082, 'analogue_gain': 1.0, 'colour_gains': [1.8, 1.3]}
     """
     path = Path(folder) / MANIFEST_NAME
+    if not os.path.lexists(path):
+        raise AcquisitionError("no acquisition manifest (written by picamcal acquire)", path)
     try:
-        if path.stat().st_size > _MAX_MANIFEST_BYTES:
-            raise AcquisitionError(f"larger than {_MAX_MANIFEST_BYTES >> 20} MB: not a manifest", path)
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise AcquisitionError("no acquisition manifest (written by picamcal acquire)", path) from None
-    except (OSError, ValueError, RecursionError) as exc:
-        raise AcquisitionError(f"corrupt manifest ({type(exc).__name__}: {exc}); move it away", path) from exc
+        record = read_json(path, AcquisitionError, "JSON", max_bytes=_MAX_MANIFEST_BYTES)
+    except AcquisitionError as exc:
+        raise AcquisitionError(f"corrupt manifest ({exc.problem}); move it away", path) from None
     if not isinstance(record, dict) or record.get("format") != MANIFEST_FORMAT:
         raise AcquisitionError(f'not a picamcal acquisition manifest (no "format": "{MANIFEST_FORMAT}")', path)
-    if record.get("version") != MANIFEST_VERSION:
-        raise AcquisitionError(f"unsupported manifest version {record.get('version')!r}", path)
-    entries, settings, roles = record.get("entries"), record.get("settings"), record.get("roles")
-    well_formed = (
-        isinstance(entries, list)
-        and all(
-            isinstance(e, dict) and isinstance(e.get("role"), str) and isinstance(e.get("file"), str) for e in entries
-        )
-        and all(Path(e["file"]).name == e["file"] for e in entries)
-        and isinstance(roles, list)
-        and all(isinstance(r, str) for r in roles)
-        and isinstance(settings, dict)
-        and {"exposure_time_us", "analogue_gain", "colour_gains"} <= settings.keys()
-        and all(isinstance(record.get(k), dict) for k in ("camera", "illuminator"))
-    )
-    if not well_formed:
-        raise AcquisitionError("corrupt manifest (malformed entries, roles, settings or rig); move it away", path)
+    if type(record.get("version")) is not int or record["version"] != MANIFEST_VERSION:
+        version = record.get("version")
+        shown = repr(version)[:20] if isinstance(version, (int, float, type(None))) else type(version).__name__
+        raise AcquisitionError(f"unsupported manifest version {shown}", path)
+    _check_manifest(record, path)
     return record
+
+
+def _check_manifest(record: dict[str, Any], path: Path) -> None:
+    """The types, counts and ranges of what :func:`acquire` and :func:`read_manifest` use (see load_manifest)."""
+    fields = Fields(path, AcquisitionError, "a usable acquisition manifest", "move it away and acquire again")
+    fields.mapping(record, "the manifest", ("camera", "illuminator", "settings", "roles", "entries"))
+    camera = fields.mapping(record["camera"], "camera", ("kind", "size"))
+    fields.text(camera["kind"], "camera.kind")
+    if camera.get("sensor") is not None:
+        fields.text(camera["sensor"], "camera.sensor")
+    fields.numbers(camera["size"], "camera.size", 2, integer=True, positive=True)
+    fields.text(fields.mapping(record["illuminator"], "illuminator", ("kind",))["kind"], "illuminator.kind")
+    settings = fields.mapping(record["settings"], "settings", ("exposure_time_us", "analogue_gain", "colour_gains"))
+    fields.number(settings["exposure_time_us"], "settings.exposure_time_us", positive=True)
+    fields.number(settings["analogue_gain"], "settings.analogue_gain", positive=True)
+    fields.numbers(settings["colour_gains"], "settings.colour_gains", 2, positive=True)
+    if "settle_s" in record:
+        fields.number(record["settle_s"], "settle_s", minimum=0)
+    roles = [fields.text(r, f"roles[{i}]") for i, r in enumerate(fields.items(record["roles"], "roles"))]
+    for role in roles:
+        if not role or not role.isascii() or not all(c.isalnum() or c in "-_" for c in role):
+            fields.fail("roles", f"holds {role[:40]!r}, not a name of letters, digits, '-' and '_'")
+    if len(set(roles)) < len(roles):
+        fields.fail("roles", "names a role twice")
+    seen = set()
+    for i, entry in enumerate(fields.items(record["entries"], "entries", maximum=len(roles))):
+        where = f"entries[{i}]"
+        fields.mapping(entry, where, ("role", "file"))
+        role = fields.text(entry["role"], f"{where}.role", roles)
+        name = fields.text(entry["file"], f"{where}.file")
+        if name in ("", ".", "..") or Path(name).name != name or "\\" in name:
+            fields.fail(f"{where}.file", f"must be a file name in the run's folder, not {name[:60]!r}")
+        if role in seen:
+            fields.fail("entries", f"list {role} twice")
+        seen.add(role)
+        if entry.get("sha256") is not None:
+            fields.text(entry["sha256"], f"{where}.sha256")
+        if "light" in entry:
+            fields.numbers(entry["light"], f"{where}.light", 3, integer=True, minimum=0, maximum=255)
 
 
 def read_manifest(folder: str | os.PathLike[str], *, extras: bool = False) -> dict[str, Path]:

@@ -35,11 +35,12 @@ from numpy.typing import ArrayLike
 from scipy import ndimage
 
 from .._atomic import atomic_path
+from .._json import Fields, read_json
 from ..colour_wheel import SEGMENTS
 from ..errors import PicamcalError
 from ..metrics import encode_srgb, hue_saturation, segment_colours, wheel_figures
 
-__all__ = ["analyse", "find_wheels", "polar_plot", "wheel_crops"]
+__all__ = ["analyse", "find_wheels", "polar_plot", "read_layout", "wheel_crops"]
 
 _POSITION_NAMES = {
     (-1, -1): "top-left",
@@ -66,6 +67,83 @@ _MIN_HUE_ORDER = 0.6  # resultant length of the hue-versus-angle fit that makes 
 _RAYS = 180  # rays from the centre on which each wheel's rim is located
 _MIN_MARGIN_DEG = 8.0  # metrics.segment_colours' default margin inside each segment's edges
 _MAX_MARGIN_DEG = 24.0  # leaves 12 of a segment's 60 degrees to sample
+
+
+#: Most wheels, segments and fiducial marks a layout may hold (picamcal's targets have 9, 6 and 5).
+_MAX_LAYOUT_ITEMS = 64
+#: Largest side of a target layout in pixels (a print at 1200 dpi on A3 is under 20000).
+_MAX_LAYOUT_SIDE = 100_000
+
+
+def read_layout(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read a target layout (``TARGET.json`` from ``picamcal target``, or a simulated run's ``layout.json``).
+
+    Everything :func:`find_wheels` and :func:`analyse` use is checked: ``width`` and ``height`` positive whole
+    numbers; 1 to 64 ``segments``, each with a ``name``, finite ``start_deg`` and ``end_deg`` and optionally an
+    sRGB ``colour`` of three numbers in 0..1; 2 to 64 ``wheels`` (one named ``"centre"``), each with a ``name``,
+    ``x`` and ``y`` on the target and a positive ``radius``; and, if there are ``fiducials``, four ``"ring"``
+    marks and one ``"disc"``, each with ``x``, ``y`` on the target and a positive ``radius`` (a ring's
+    ``hole_radius`` smaller than it).
+
+    Raises
+    ------
+    PicamcalError
+        Not a regular file, not UTF-8 JSON, or any value of the wrong type, count or range; one line naming the
+        file and the value.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from picamcal.target import save_target
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     _, layout_path = save_target(Path(folder) / "wheels.png", 640, 360)
+    ...     layout = read_layout(layout_path)
+    >>> layout["width"], len(layout["wheels"]), len(layout["fiducials"])
+    (640, 9, 5)
+    """
+    layout = read_json(path, PicamcalError, "a target layout")
+    fields = Fields(path, PicamcalError, "a target layout", "give the TARGET.json picamcal target wrote")
+    fields.mapping(layout, "the file", ("width", "height", "segments", "wheels"))
+    width = fields.number(layout["width"], "width", integer=True, minimum=1, maximum=_MAX_LAYOUT_SIDE)
+    height = fields.number(layout["height"], "height", integer=True, minimum=1, maximum=_MAX_LAYOUT_SIDE)
+    if "units" in layout:
+        fields.text(layout["units"], "units", ["pixels"])
+    names = set()
+    segments = fields.items(layout["segments"], "segments", minimum=1, maximum=_MAX_LAYOUT_ITEMS)
+    for i, segment in enumerate(segments):
+        where = f"segments[{i}]"
+        fields.mapping(segment, where, ("name", "start_deg", "end_deg"))
+        names.add(fields.text(segment["name"], f"{where}.name"))
+        for key in ("start_deg", "end_deg"):
+            fields.number(segment[key], f"{where}.{key}", minimum=-720, maximum=720)
+        if "colour" in segment:
+            fields.numbers(segment["colour"], f"{where}.colour", 3, minimum=0, maximum=1)
+    if len(names) < len(segments):
+        fields.fail("segments", "must have different names")
+    wheels = fields.items(layout["wheels"], "wheels", minimum=2, maximum=_MAX_LAYOUT_ITEMS)
+    names = {
+        fields.text(fields.mapping(w, f"wheels[{i}]", ("name",))["name"], f"wheels[{i}].name")
+        for i, w in enumerate(wheels)
+    }
+    if len(names) < len(wheels) or _REFERENCE_WHEEL not in names:
+        fields.fail("wheels", f"must have different names, one of them {_REFERENCE_WHEEL!r}")
+    marks = fields.items(layout.get("fiducials", []), "fiducials", maximum=_MAX_LAYOUT_ITEMS)
+    for kind, items in (("wheels", wheels), ("fiducials", marks)):
+        for i, item in enumerate(items):
+            where = f"{kind}[{i}]"
+            fields.mapping(item, where, ("x", "y", "radius"))
+            fields.number(item["x"], f"{where}.x", minimum=-0.5, maximum=width - 0.5)
+            fields.number(item["y"], f"{where}.y", minimum=-0.5, maximum=height - 0.5)
+            radius = fields.number(item["radius"], f"{where}.radius", positive=True, maximum=max(width, height))
+            if kind == "fiducials":
+                if fields.text(item.get("kind"), f"{where}.kind", ["ring", "disc"]) == "ring":
+                    fields.number(item.get("hole_radius", 0), f"{where}.hole_radius", minimum=0, maximum=radius)
+                if "name" in item:
+                    fields.text(item["name"], f"{where}.name")
+    kinds = [m["kind"] for m in marks]
+    if marks and (kinds.count("ring"), kinds.count("disc")) != (4, 1):
+        fields.fail("fiducials", f"must be 4 rings and 1 disc, not {kinds.count('ring')} and {kinds.count('disc')}")
+    return layout
 
 
 def find_wheels(rgb: ArrayLike, *, layout: Mapping[str, Any] | None = None) -> dict[str, Any]:

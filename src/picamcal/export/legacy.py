@@ -31,6 +31,8 @@ from ..raw.model import RawImage
 
 CELL = 64
 UNITY = 32
+#: The largest gain a table entry holds: 255 / 32, about 7.97.
+MAX_GAIN = 255 / UNITY
 
 
 def table_shape(width: int, height: int) -> tuple[int, int, int]:
@@ -83,7 +85,8 @@ def legacy_table(calibration: Calibration) -> np.ndarray:
     Raises
     ------
     PicamcalError
-        A gain above 255/32 would be needed (a table full of 255 gives black images, a reported failure).
+        A gain above 255/32 would be needed: refused, never clipped or wrapped round (a table full of 255 gives
+        black images, a reported failure).
 
     Examples
     --------
@@ -104,11 +107,38 @@ def legacy_table(calibration: Calibration) -> np.ndarray:
         ax = _cell_interpolation(cols, calibration.width, sx)
         planes.append(np.linalg.pinv(ay) @ gain @ np.linalg.pinv(ax).T)
     gains = np.stack(planes)
-    if gains.max() > 255 / UNITY:
+    if not np.all(np.isfinite(gains)):
+        raise PicamcalError("the legacy table's gains are not finite: the calibration's white is not usable")
+    if gains.max() > MAX_GAIN:
         raise PicamcalError(
-            f"the legacy table would need gains up to {gains.max():.2f}, above its maximum of {255 / UNITY:.2f}"
+            f"the legacy table would need gains up to {gains.max():.2f}, above its maximum of {MAX_GAIN:.2f} "
+            "(u3.5 in a byte): the legacy firmware cannot correct this much vignetting; use export-tuning for "
+            "libcamera (gains up to 8 on a Pi 5, 16 on a Pi 4)"
         )
     return np.clip(np.round(gains * UNITY), UNITY, 255).astype(np.uint8)
+
+
+def check_legacy_table(table: np.ndarray) -> None:
+    """Raise PicamcalError unless ``table`` is what the firmware reads: uint8 of shape (4, rows, columns).
+
+    Gains are u3.5 (32 = 1.0): any other dtype is refused rather than converted, so no gain wraps round.
+
+    Examples
+    --------
+    >>> check_legacy_table(np.full((4, 39, 52), 32, np.uint8))
+    >>> check_legacy_table(np.full((4, 39, 52), 8.5))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: a legacy table must be uint8 (u3.5 gains, 32 = 1.0), not float64: make it \
+with legacy_table()
+    """
+    if not isinstance(table, np.ndarray) or table.dtype != np.uint8:
+        dtype = table.dtype if isinstance(table, np.ndarray) else type(table).__name__
+        raise PicamcalError(
+            f"a legacy table must be uint8 (u3.5 gains, 32 = 1.0), not {dtype}: make it with legacy_table()"
+        )
+    if table.ndim != 3 or table.shape[0] != 4 or min(table.shape) < 2:
+        raise PicamcalError(f"a legacy table has shape (4, rows, columns), not {table.shape}")
 
 
 def apply_legacy_table(raw: RawImage, table: np.ndarray) -> np.ndarray:
@@ -136,7 +166,14 @@ def apply_legacy_table(raw: RawImage, table: np.ndarray) -> np.ndarray:
 
 
 def save_legacy_table(path: str | os.PathLike[str], table: np.ndarray, overwrite: bool = False) -> Path:
-    """Save a legacy table as ``.npy`` (what ``numpy.load`` gives back to the picamera fork), atomically."""
+    """Save a legacy table as ``.npy`` (what ``numpy.load`` gives back to the picamera fork), atomically.
+
+    Raises
+    ------
+    PicamcalError
+        Not a table the firmware reads (:func:`check_legacy_table`); nothing is written.
+    """
+    check_legacy_table(table)
     path = Path(path)
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
         np.save(f, table)
@@ -151,8 +188,10 @@ def is_legacy_table(path: str | os.PathLike[str]) -> bool:
     >>> is_legacy_table("lens_shading.npy")  # doctest: +SKIP
     True
     """
+    if not os.path.isfile(path):  # a FIFO would block np.load
+        return False
     try:
         table = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (OSError, ValueError):
+    except Exception:  # numpy's header parser raises many types (tokenize.TokenError among them): not a table
         return False
     return table.dtype == np.uint8 and table.ndim == 3 and table.shape[0] == 4

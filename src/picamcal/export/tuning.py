@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import itertools
 import json
+import math
 import os
 import warnings
 from pathlib import Path
@@ -18,11 +19,12 @@ from typing import Any
 import numpy as np
 
 from .._atomic import atomic_path
+from .._json import read_json
 from ..bayer import bin_edges
 from ..calibration import Calibration
-from ..errors import PicamcalError, PicamcalWarning
-from ..sensors import LSC_GRIDS, find_sensor_name
-from .isp import GAIN_LIMITS, table_to_pixels
+from ..errors import PicamcalWarning
+from ..sensors import find_sensor_name
+from .isp import GAIN_LIMITS, TuningError, check_hardware_range, check_tuning, table_to_pixels
 
 #: Where libcamera installs the stock tuning files on Raspberry Pi OS.
 STOCK_TUNING_DIR = Path("/usr/share/libcamera/ipa/rpi")
@@ -33,17 +35,14 @@ BUNDLED_TUNING_DIR = Path(__file__).resolve().parent.parent / "data" / "libcamer
 TARGET_NAMES = {"vc4": "bcm2835", "pisp": "pisp"}
 
 
-class TuningError(PicamcalError):
-    """A tuning file that cannot be used, or a table the hardware cannot apply."""
-
-
 def load_tuning(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read and check a libcamera tuning file (version 2 JSON with a known target).
+    """Read and check a libcamera tuning file (version 2 JSON with a known target), as libcamera would.
 
     Raises
     ------
     TuningError
-        Unreadable, not JSON, not version 2, an unknown target, or a malformed algorithm list.
+        Missing, not a regular file, unreadable, not UTF-8 JSON (or nested absurdly deep), not version 2, an
+        unknown target, or sections that break libcamera's rules (:func:`~picamcal.export.isp.check_tuning`).
 
     Examples
     --------
@@ -52,32 +51,11 @@ def load_tuning(path: str | os.PathLike[str]) -> dict[str, Any]:
     'bcm2835'
     """
     path = Path(path)
-    try:
-        tuning = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise TuningError("no such tuning file", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TuningError(f"cannot read the tuning file ({exc})", path) from exc
-    except ValueError as exc:
-        raise TuningError(f"not a JSON tuning file ({exc})", path) from exc
+    if not os.path.lexists(path):
+        raise TuningError("no such tuning file", path)
+    tuning = read_json(path, TuningError, "a JSON tuning file")
     check_tuning(tuning, path)
     return tuning
-
-
-def check_tuning(tuning: Any, source: str | os.PathLike[str] | None = None) -> str:
-    """Check the structure libcamera requires of a tuning file; return its target."""
-    if not isinstance(tuning, dict) or "algorithms" not in tuning:
-        raise TuningError("not a version 2 libcamera tuning file (no 'algorithms' list)", source)
-    version = tuning.get("version")
-    if not isinstance(version, (int, float)) or not 2.0 <= float(version) < 3.0:
-        raise TuningError(f"tuning file version {version!r} is not 2.x (libcamera reads 2.x only)", source)
-    target = tuning.get("target")
-    if target not in LSC_GRIDS:
-        raise TuningError(f"unknown tuning target {target!r} (expected {' or '.join(LSC_GRIDS)})", source)
-    algorithms = tuning["algorithms"]
-    if not isinstance(algorithms, list) or not all(isinstance(a, dict) and len(a) == 1 for a in algorithms):
-        raise TuningError("'algorithms' must be a list of one-key objects", source)
-    return str(target)
 
 
 def bundled_tuning_sensors(target: str) -> list[str]:
@@ -282,6 +260,9 @@ def export_tuning(
     >>> tuning = export_tuning(load_calibration("cal.npz"), load_tuning("imx219.json"), ccm=True)  # doctest: +SKIP
     """
     target = check_tuning(base)
+    if isinstance(ct, bool) or not isinstance(ct, (int, float)) or not math.isfinite(ct) or ct < 1:
+        # libcamera refuses a table whose ct is not above the previous one, starting from 0
+        raise TuningError(f"colour temperature {ct!r} is not a positive number of kelvin: give the light's, e.g. 4500")
     if base_sensor and calibration.sensor and base_sensor != calibration.sensor:
         raise TuningError(
             f"the calibration is for the {calibration.sensor}, the base tuning file for the {base_sensor}"
@@ -308,6 +289,7 @@ def export_tuning(
         section = next((copy.deepcopy(a["rpi.ccm"]) for a in algorithms if "rpi.ccm" in a), {})
         section["ccms"] = [{"ct": int(ct), "ccm": _ccm_from_calibration(calibration)}]
         _set_algorithm(algorithms, "rpi.ccm", section, after="rpi.contrast")
+    check_hardware_range(tuning)
     return tuning
 
 
@@ -316,11 +298,27 @@ def _rounded(table: np.ndarray) -> list[float]:
 
 
 def save_tuning(path: str | os.PathLike[str], tuning: dict[str, Any], overwrite: bool = False) -> Path:
-    """Write a tuning file as JSON, atomically (temporary name, then rename)."""
+    """Write a tuning file as JSON, atomically (temporary name, then rename), if libcamera and the ISP can use it.
+
+    Raises
+    ------
+    TuningError
+        A section breaks libcamera's rules (:func:`~picamcal.export.isp.check_tuning`), a gain or colour matrix
+        coefficient is outside the hardware's range (:func:`~picamcal.export.isp.check_hardware_range`), or a
+        value is not JSON (NaN, infinity); nothing is written.
+
+    Examples
+    --------
+    >>> save_tuning("imx219_pisp.json", export_tuning(cal, load_tuning("imx219.json")))  # doctest: +SKIP
+    """
     path = Path(path)
-    check_tuning(tuning)
+    check_hardware_range(tuning)
+    try:
+        text = json.dumps(tuning, indent=4, allow_nan=False) + "\n"
+    except (TypeError, ValueError, RecursionError) as exc:
+        raise TuningError(f"cannot be written as a tuning file ({exc})", path) from None
     with atomic_path(path, overwrite=overwrite) as tmp:
-        tmp.write_text(json.dumps(tuning, indent=4) + "\n")
+        tmp.write_text(text)
     return path
 
 

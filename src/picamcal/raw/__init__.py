@@ -19,7 +19,7 @@ from ._files import file_head
 from .brcm import is_jpeg, read_brcm, write_brcm
 from .dng import is_dng, read_dng, write_dng
 from .headless import headless_hint, read_headless
-from .model import PATTERNS, RawImage, site_channels
+from .model import PATTERNS, RawImage, given_black_level, site_channels
 from .npz import read_npz, write_npz
 from .picamera2 import (
     from_picamera2,
@@ -71,6 +71,7 @@ def read_raw(
     frame: int | None = None,
     sensor: str | None = None,
     verify: bool = True,
+    expected_shape: tuple[int, int] | None = None,
 ) -> RawImage:
     """Read a raw Bayer image from a file, whatever its format.
 
@@ -79,6 +80,10 @@ def read_raw(
     saved as ``.npy`` with a JSON sidecar, and picamcal's own raw ``.npz`` (docs/formats.md). With
     ``raw_format`` the file is read as a headless dump (``rpicam-raw -o``, :func:`read_headless`)
     whatever its bytes.
+
+    The size a file's header declares (or ``size``, for a headless dump) is checked before anything of that size
+    is read: against ``expected_shape`` when given, and against the pixel limit
+    (:func:`picamcal.limits.check_size`, ``PICAMCAL_MAX_PIXELS``).
 
     What the file declares is checked against its data (:func:`picamcal.raw.verify.check_metadata`):
     a Bayer order whose greens sit on the wrong diagonal, or a missing black level, gives a
@@ -91,7 +96,8 @@ def read_raw(
     pattern : str, optional
         Override the file's Bayer order (``RGGB``, ``GBRG``, ``BGGR``, ``GRBG``).
     black_level : float or 4 floats, optional
-        Override the file's black level (DN; one value, or one per 2x2 site row-major).
+        Override the file's black level (DN; one value, or one per 2x2 site row-major; finite, >= 0 and below the
+        white level).
     raw_format : str, optional
         Read the file as a headless raw dump (``rpicam-raw``, ``libcamera-raw``) in this libcamera format
         (``SBGGR10_CSI2P``, ``SRGGB12_CSI2P``, ``SGBRG16``, ``BGGR_PISP_COMP1``, ...; case-insensitive); needs
@@ -111,6 +117,9 @@ def read_raw(
         ``metadata["sensor_known"]`` false. A file that names its sensor keeps its own.
     verify : bool
         Check the declared metadata against the data and warn.
+    expected_shape : (height, width), optional
+        The Bayer size the caller needs (a calibration's): a file declaring another size raises
+        ``CalibrationFileError`` before its pixels are read.
 
     Returns
     -------
@@ -123,8 +132,11 @@ def read_raw(
     Raises
     ------
     RawFormatError
-        The file is missing, unreadable, empty or not a raw image; for a headless dump, see
-        :func:`read_headless`.
+        The file is missing, not a regular file, unreadable, empty, not a raw image, corrupt, or declares a size
+        over the pixel limit; an override is malformed (a black level that is NaN, negative or not below the white
+        level); for a headless dump, see :func:`read_headless`.
+    CalibrationFileError
+        The file's size is not ``expected_shape``.
 
     Examples
     --------
@@ -137,14 +149,30 @@ def read_raw(
     (12, None, nan)
     """
     path = Path(path)
+    if sensor is not None and not isinstance(sensor, str):
+        raise RawFormatError(f"the sensor is a name such as 'imx219', not {sensor!r:.40}", path)
     if raw_format is not None:
-        raw = read_headless(path, raw_format, size, stride=stride, frame=frame, sensor=sensor, black_level=black_level)
+        raw = read_headless(
+            path,
+            raw_format,
+            size,
+            stride=stride,
+            frame=frame,
+            sensor=sensor,
+            black_level=black_level,
+            expected_shape=expected_shape,
+        )
         if pattern is not None:
             raw = override(raw, pattern=pattern)
     else:
         if size is not None or stride is not None or frame is not None:
             raise RawFormatError("a size, stride or frame describes a headless dump: give its raw format too", path)
-        raw = _read_by_signature(path, file_head(path))
+        try:
+            raw = _read_by_signature(path, file_head(path), expected_shape)
+        except RawFormatError as exc:
+            if exc.path is not None:
+                raise
+            raise RawFormatError(exc.problem, path) from None  # a check deep in a reader that did not name the file
         if sensor is not None and raw.sensor is None:
             raw = _with_sensor(raw, sensor)
         if pattern is not None or black_level is not None:
@@ -167,15 +195,15 @@ def _with_sensor(raw: RawImage, sensor: str) -> RawImage:
     return dataclasses.replace(raw, sensor=name or sensor, black_level=black, metadata=meta)
 
 
-def _read_by_signature(path: Path, head: bytes) -> RawImage:
+def _read_by_signature(path: Path, head: bytes, expected_shape: tuple[int, int] | None) -> RawImage:
     if is_dng(head):
-        return read_dng(path)
+        return read_dng(path, expected_shape=expected_shape)
     if is_jpeg(head) or head.startswith(b"BRCM"):
-        return read_brcm(path)
+        return read_brcm(path, expected_shape=expected_shape)
     if head.startswith(b"PK"):
-        return read_npz(path)
+        return read_npz(path, expected_shape=expected_shape)
     if is_npy(head):
-        return read_picamera2_npy(path)
+        return read_picamera2_npy(path, expected_shape=expected_shape)
     for signature, what in _SIGNATURES.items():
         if head.startswith(signature):
             raise RawFormatError(f"{what}, not a raw image (a processed image? use --processed)", path)
@@ -190,6 +218,9 @@ def override(
 ) -> RawImage:
     """A copy of ``raw`` with its Bayer order or black level replaced; the declared values stay in the metadata.
 
+    The black level must be 1 or 4 finite numbers >= 0 below the white level (:func:`given_black_level`): an
+    unknown level is NaN inside a RawImage, but a NaN given here would make every corrected pixel NaN.
+
     Examples
     --------
     >>> override(raw, pattern="BGGR", black_level=64).pattern  # doctest: +SKIP
@@ -199,12 +230,17 @@ def override(
     if pattern is not None and pattern != raw.pattern:
         meta["declared_pattern"] = raw.pattern
     if black_level is not None:
+        black_level = given_black_level(black_level, raw.source)
+        if max(black_level) >= raw.white_level:
+            raise RawFormatError(
+                f"--black-level {max(black_level):g} is not below the white level {raw.white_level}", raw.source
+            )
         meta["declared_black_level"] = list(raw.black_level)
     try:
         return RawImage(
             raw.bayer,
             pattern if pattern is not None else raw.pattern,
-            raw.black_level if black_level is None else black_level,  # type: ignore[arg-type]
+            raw.black_level if black_level is None else black_level,
             raw.white_level,
             raw.bit_depth,
             raw.sensor,

@@ -2,10 +2,21 @@
 
 from __future__ import annotations
 
+import os
+import tokenize
 from pathlib import Path
+from typing import BinaryIO
+
+import numpy as np
 
 from ..errors import RawFormatError
 from ..limits import require_regular_file
+
+#: What numpy's ``.npy`` header readers raise on a damaged header: ``ast.literal_eval`` and numpy's own checks
+#: (ValueError, SyntaxError, TypeError for an unhashable key, RecursionError for deep nesting), the tokenizer of
+#: its Python 2 fallback (``tokenize.TokenError``, for a header cut inside a bracket), ``EOFError`` for a short file.
+_NPY_HEADER_ERRORS = (ValueError, TypeError, SyntaxError, RecursionError, OverflowError, EOFError, tokenize.TokenError)
+_MAX_NPY_HEADER = 10_000  # numpy's own default limit on a header's length
 
 
 def file_head(path: Path, size: int = 8) -> bytes:
@@ -30,3 +41,71 @@ def file_head(path: Path, size: int = 8) -> bytes:
     if not head:
         raise RawFormatError("empty file (0 bytes)", path)
     return head
+
+
+def read_npy_header(
+    f: BinaryIO, source: str | os.PathLike[str], what: str = ".npy file"
+) -> tuple[tuple, bool, np.dtype]:
+    """The shape, Fortran order and dtype a ``.npy`` header declares, read from ``f`` without reading the data.
+
+    ``f`` is left at the first byte of the data. Nothing is allocated from the header's values: the caller checks
+    the shape before reading.
+
+    Raises
+    ------
+    RawFormatError
+        Not a ``.npy`` header, a version numpy does not write, or a header that does not parse (one line naming
+        ``source`` and ``what``).
+
+    Examples
+    --------
+    >>> import io
+    >>> buffer = io.BytesIO()
+    >>> np.save(buffer, np.zeros((2, 4), np.uint8))
+    >>> _ = buffer.seek(0)
+    >>> read_npy_header(buffer, "x.npy")
+    ((2, 4), False, dtype('uint8'))
+    """
+    try:
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(f, max_header_size=_MAX_NPY_HEADER)
+        elif version == (2, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(f, max_header_size=_MAX_NPY_HEADER)
+        else:
+            numbers = f"{version[0]}.{version[1]}"
+            raise RawFormatError(f"unsupported .npy version {numbers} in {what} (numpy writes 1.0 and 2.0)", source)
+    except _NPY_HEADER_ERRORS as exc:
+        detail = " ".join(str(exc).split())
+        detail = detail if len(detail) <= 80 else detail[:77] + "..."
+        raise RawFormatError(f"corrupt {what} ({type(exc).__name__}: {detail})", source) from None
+    return shape, fortran, dtype
+
+
+def read_array_data(f: BinaryIO, dtype: np.dtype, count: int, source: str | os.PathLike[str], what: str) -> np.ndarray:
+    """``count`` items of ``dtype`` from ``f`` (a file or a zip member), read into one array of that size only.
+
+    Read in pieces, so that a stream that ends early or a forged size costs no more than the array the caller has
+    already sized.
+
+    Raises
+    ------
+    RawFormatError
+        The stream ends before ``count`` items (``what`` names the data in the message).
+
+    Examples
+    --------
+    >>> import io
+    >>> read_array_data(io.BytesIO(bytes(range(6))), np.dtype("<u2"), 3, "x.npy", "data").tolist()
+    [256, 770, 1284]
+    """
+    out = np.empty(count, dtype=dtype)
+    view = out.view(np.uint8)
+    done = 0
+    while done < view.size:
+        piece = f.read(min(view.size - done, 1 << 22))
+        if not piece:
+            raise RawFormatError(f"truncated {what}: {done} of {view.size} bytes of data", source)
+        view[done : done + len(piece)] = np.frombuffer(piece, dtype=np.uint8)
+        done += len(piece)
+    return out

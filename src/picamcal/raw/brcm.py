@@ -26,12 +26,11 @@ from __future__ import annotations
 
 import io
 import math
-import mmap
 import os
 import re
 import struct
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -39,7 +38,8 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from .._atomic import atomic_path
-from ..errors import RawFormatError
+from ..errors import PicamcalWarning, RawFormatError, short
+from ..limits import check_size, require_regular_file
 from ..sensors import SENSORS, LegacyMode, Sensor, black_level_at, find_sensor_name
 from .model import PATTERNS, RawImage, site_channels
 from .packing import pack, packed_row_bytes, unpack
@@ -57,8 +57,9 @@ _STRIDE_ALIGN = 32
 _BAYER_ORDERS = ("RGGB", "GBRG", "BGGR", "GRBG")  # header bayer_order code -> pattern
 #: EXIF models of early firmware that do not name the sensor.
 _MODEL_ALIASES = {"testc": "ov5647"}
-#: How far from the end to look for a ``BRCM`` block of unknown size when diagnosing a file.
+#: How far from the end to look for a ``BRCM`` block of unknown size when diagnosing a file, and in what chunks.
 _DIAGNOSE_WINDOW = 64 << 20
+_DIAGNOSE_CHUNK = 1 << 20
 _PREVIEW_MAX_SIDE = 320
 _EXPOSURE_TIME, _ISO, _DATETIME_ORIGINAL, _MAKER_NOTE, _EXIF_IFD = 33434, 34855, 36867, 37500, 0x8769
 _MAKE, _MODEL, _SOFTWARE, _DATETIME = 271, 272, 305, 306
@@ -123,34 +124,51 @@ def _sensor_from_model(model: str | None) -> str | None:
 
 
 def _rational(value: Any) -> float | None:
+    """One positive finite number (Pillow gives an EXIF RATIONAL as an ``IFDRational``), else None."""
+    if isinstance(value, (bool, tuple, list, bytes, str)):
+        return None
     try:
-        if isinstance(value, tuple) and len(value) == 2:
-            result = value[0] / value[1]
-        else:
-            result = float(value)
+        result = float(value)
     except (TypeError, ValueError, ZeroDivisionError, OverflowError):
         return None
     return result if math.isfinite(result) and result > 0 else None
 
 
-def _maker_note(value: Any) -> dict[str, Any]:
-    """The firmware's MakerNote: ``ev=-1 mlux=-1 exp=62998 ag=556 ... gain_r=1.128 gain_b=2.546 ...``."""
+def _maker_note(value: Any, problems: list[str]) -> dict[str, Any]:
+    """The firmware's MakerNote: ``ev=-1 mlux=-1 exp=62998 ag=556 ... gain_r=1.128 gain_b=2.546 ...``.
+
+    ``ag`` (analogue gain, Q8) and ``gain_r``/``gain_b`` must be positive finite numbers; others are noted in
+    ``problems`` and left out. A gain of ``ag=-1`` or ``ag=0`` is the firmware's "not known" and left out quietly.
+    """
     text = value.decode("latin-1") if isinstance(value, bytes) else str(value)
-    text = text.strip("\x00 ")
+    text = _one_line(text)
     meta: dict[str, Any] = {"maker_note": text}
-    fields = dict(re.findall(r"(?<![\w.])([a-z_]+)=(-?[0-9.]+)", text))
-    try:
-        if int(fields.get("ag", 0)) > 0:
-            meta["analogue_gain"] = int(fields["ag"]) / 256.0  # Q8: ag=556 goes with ISO 220 in real files
-        if "gain_r" in fields and "gain_b" in fields:
-            meta["colour_gains"] = [float(fields["gain_r"]), float(fields["gain_b"])]
-    except ValueError:
-        pass
+    fields = dict(re.findall(r"(?<![\w.])([a-z_]+)=(-?[0-9.]{1,32})(?![0-9.])", text))
+    gain = _rational(_float(fields.get("ag")))
+    if gain is not None:
+        meta["analogue_gain"] = gain / 256.0  # Q8: ag=556 goes with ISO 220 in real files
+    if "gain_r" in fields and "gain_b" in fields:
+        gains = [_rational(_float(fields["gain_r"])), _rational(_float(fields["gain_b"]))]
+        if None in gains:
+            problems.append(f"MakerNote colour gains gain_r={fields['gain_r']} gain_b={fields['gain_b']}")
+        else:
+            meta["colour_gains"] = gains
     return meta
 
 
-def _exif_metadata(path: Path) -> dict[str, Any]:
-    """Make, model, exposure, ISO, gains and timestamp from the JPEG's EXIF; empty if Pillow cannot parse it."""
+def _float(text: str | None) -> float | None:
+    try:
+        return None if text is None else float(text)
+    except ValueError:  # "1.2.3" matches the MakerNote's number pattern too
+        return None
+
+
+def _exif_metadata(path: Path, problems: list[str]) -> dict[str, Any]:
+    """Make, model, exposure, ISO, gains and timestamp from the JPEG's EXIF.
+
+    All informative: EXIF that Pillow cannot parse, or a value of the wrong kind (an ExposureTime of two values,
+    a zero denominator, text where a number belongs), is left out and noted in ``problems``.
+    """
     from PIL import Image
 
     meta: dict[str, Any] = {}
@@ -160,24 +178,52 @@ def _exif_metadata(path: Path) -> dict[str, Any]:
             with Image.open(path) as image:
                 tags = image.getexif()
                 exif, sub = dict(tags), dict(tags.get_ifd(_EXIF_IFD))
-    except Exception:  # Pillow raises many types on damaged JPEG/EXIF; the raw block does not need it
+    except Exception as exc:  # only Pillow runs here, and it raises many types on a damaged JPEG or EXIF
+        problems.append(f"the JPEG's EXIF cannot be read ({type(exc).__name__})")
         return meta
     for tag, key in ((_MAKE, "make"), (_MODEL, "model")):
-        if isinstance(exif.get(tag), str):
-            meta[key] = exif[tag].strip("\x00 ")
-    exposure = _rational(sub.get(_EXPOSURE_TIME))
-    if exposure is not None:
-        meta["exposure_time_s"] = exposure
+        text = _exif_text(exif.get(tag), key, problems)
+        if text:
+            meta[key] = text
+    if sub.get(_EXPOSURE_TIME) is not None:
+        exposure = _rational(sub[_EXPOSURE_TIME])
+        if exposure is None:
+            problems.append(f"EXIF ExposureTime {short(sub[_EXPOSURE_TIME])} is not one positive number")
+        else:
+            meta["exposure_time_s"] = exposure
     iso = sub.get(_ISO)
     iso = iso[0] if isinstance(iso, tuple) and iso else iso
-    if isinstance(iso, int) and iso > 0:
-        meta["iso"] = iso
-    stamp = sub.get(_DATETIME_ORIGINAL) or exif.get(_DATETIME)
-    if isinstance(stamp, str) and stamp.strip("\x00 "):
-        meta["timestamp"] = stamp.strip("\x00 ")
-    if isinstance(sub.get(_MAKER_NOTE), (bytes, str)):
-        meta.update(_maker_note(sub[_MAKER_NOTE]))
+    if iso is not None:
+        if isinstance(iso, int) and not isinstance(iso, bool) and iso > 0:
+            meta["iso"] = iso
+        else:
+            problems.append(f"EXIF ISOSpeedRatings {short(iso)} is not a positive whole number")
+    stamp = _exif_text(sub.get(_DATETIME_ORIGINAL), "DateTimeOriginal", problems) or _exif_text(
+        exif.get(_DATETIME), "DateTime", problems
+    )
+    if stamp:
+        meta["timestamp"] = stamp
+    if sub.get(_MAKER_NOTE) is not None:
+        if isinstance(sub[_MAKER_NOTE], (bytes, str)):
+            meta.update(_maker_note(sub[_MAKER_NOTE], problems))
+        else:
+            problems.append("EXIF MakerNote is not text")
     return meta
+
+
+def _exif_text(value: Any, name: str, problems: list[str]) -> str | None:
+    """An EXIF ASCII value as one line of text; None if absent, noted in ``problems`` if not text."""
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        problems.append(f"EXIF {name} {short(value)} is not text")
+        return None
+    return _one_line(value) or None
+
+
+def _one_line(text: str) -> str:
+    """Text from a file, fit for a one-line message: control characters and NULs as spaces, trimmed."""
+    return "".join(c if c.isprintable() else " " for c in text).strip()
 
 
 def _header_fields(f: BinaryIO, start: int) -> dict[str, Any] | None:
@@ -187,7 +233,7 @@ def _header_fields(f: BinaryIO, start: int) -> dict[str, Any] | None:
         return None
     name, width, height, pad_right, pad_down, *_unused, transform, fmt, order, bayer_format = _FIELDS.unpack(data)
     return {
-        "name": name.split(b"\x00", 1)[0].decode("latin-1"),
+        "name": _one_line(name.split(b"\x00", 1)[0].decode("latin-1")),
         "width": width,
         "height": height,
         "padding_right": pad_right,
@@ -203,16 +249,22 @@ def _larger_modes(width: int, height: int, size: int) -> list[LegacyMode]:
     return [m for _, m in _legacy_modes() if (m.width, m.height) == (width, height) and m.block_size > size]
 
 
+def _find_ident(f: BinaryIO, size: int) -> int | None:
+    """Offset of the first ``BRCM`` in the last :data:`_DIAGNOSE_WINDOW` bytes, read a chunk at a time."""
+    start = max(0, size - _DIAGNOSE_WINDOW)
+    for at in range(start, size, _DIAGNOSE_CHUNK):
+        f.seek(at)
+        chunk = f.read(_DIAGNOSE_CHUNK + len(_IDENT) - 1)  # overlap: an ident across the chunk boundary
+        found = chunk.find(_IDENT)
+        if found >= 0:
+            return at + found
+    return None
+
+
 def _diagnose(f: BinaryIO, size: int, head: bytes, path: Path) -> RawFormatError:
     """The error for a file with no raw block of a known size at its end."""
-    found = None
-    start = max(0, size - _DIAGNOSE_WINDOW)
-    try:
-        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            found = mm.find(_IDENT, start)
-    except (OSError, ValueError):
-        found = None
-    if found is not None and found >= 0:
+    found = _find_ident(f, size)
+    if found is not None:
         block = size - found
         if block < HEADER_SIZE:
             return RawFormatError(
@@ -276,16 +328,26 @@ def _choose(
     raise RawFormatError(problems[0] if problems else "the raw (BRCM) header is cut short", path)
 
 
-def read_brcm(path: str | os.PathLike[str]) -> RawImage:
+def read_brcm(path: str | os.PathLike[str], *, expected_shape: Sequence[int] | None = None) -> RawImage:
     """Read the Bayer mosaic from a legacy JPEG+raw file (raspistill ``--raw``, picamera ``bayer=True``).
 
     Only the raw block's header and its pixel rows are read (the block is found from the end of the file by
-    the registry's block sizes); the EXIF of the JPEG adds the sensor hint and exposure metadata.
+    the registry's block sizes, so no header can make it read more than the largest mode's block); the EXIF of
+    the JPEG adds the sensor hint and exposure metadata.
+
+    The header must agree with its block: width and height those of a mode of that block size, ``format`` 33
+    (Bayer), ``bayer_format`` that mode's bit depth (3 = RAW10, 4 = RAW12), ``bayer_order`` 0-3 and a
+    ``padding_right`` whose row stride divides the block; otherwise it is a ``RawFormatError`` naming the field.
+    The size is checked (:func:`picamcal.limits.check_size`, and against ``expected_shape``) before the rows are
+    read. The EXIF is informative: values Pillow cannot parse or of the wrong kind are left out with one
+    :class:`~picamcal.errors.PicamcalWarning`.
 
     Parameters
     ----------
     path : path-like
         The JPEG+raw file (or a BRCM block on its own).
+    expected_shape : (height, width), optional
+        The mosaic size the caller needs (the calibration's): another size is refused before the rows are read.
 
     Returns
     -------
@@ -298,7 +360,10 @@ def read_brcm(path: str | os.PathLike[str]) -> RawImage:
     Raises
     ------
     RawFormatError
-        Empty, truncated or unrecognised file, a JPEG without a raw block, or a header inconsistent with its block.
+        Not a regular file, empty, truncated or unrecognised, a JPEG without a raw block, or a header inconsistent
+        with its block.
+    CalibrationFileError
+        The mosaic is not ``expected_shape``.
 
     Examples
     --------
@@ -307,6 +372,8 @@ def read_brcm(path: str | os.PathLike[str]) -> RawImage:
     ('imx219', 'BGGR', (2464, 3280), 64.0)
     """
     path = Path(path)
+    require_regular_file(path)
+    problems: list[str] = []
     try:
         with open(path, "rb") as f:
             size = os.fstat(f.fileno()).st_size
@@ -321,8 +388,9 @@ def read_brcm(path: str | os.PathLike[str]) -> RawImage:
                         candidates.append(block)
             if not candidates:
                 raise _diagnose(f, size, head, path)
-            meta = _exif_metadata(path) if is_jpeg(head) else {}
+            meta = _exif_metadata(path, problems) if is_jpeg(head) else {}
             sensor, mode, block, header = _choose(f, size, candidates, _sensor_from_model(meta.get("model")), path)
+            check_size(path, header["width"], header["height"], expected_shape)
             bayer = _read_pixels(f, size - block, mode, header, path)
     except FileNotFoundError:
         raise RawFormatError("no such file", path) from None
@@ -330,6 +398,8 @@ def read_brcm(path: str | os.PathLike[str]) -> RawImage:
         raise RawFormatError("is a directory, not a raw image file", path) from None
     except OSError as exc:
         raise RawFormatError(f"cannot read: {exc.strerror or exc}", path) from exc
+    if problems:
+        warnings.warn(f"{path}: malformed EXIF left out: {'; '.join(problems)}", PicamcalWarning, stacklevel=2)
     meta.update(
         {
             "format": "brcm",
@@ -353,12 +423,16 @@ def read_brcm(path: str | os.PathLike[str]) -> RawImage:
 def _read_pixels(f: BinaryIO, start: int, mode: LegacyMode, header: dict[str, Any], path: Path) -> np.ndarray:
     if header["bayer_order"] >= len(_BAYER_ORDERS):
         raise RawFormatError(f"unknown Bayer order code {header['bayer_order']} in the raw header (expected 0-3)", path)
-    if header["format"] == _FORMAT_BAYER:
-        bits = _BAYER_FORMAT_BITS.get(header["bayer_format"])
-        if bits is not None and bits != mode.bit_depth:
-            raise RawFormatError(
-                f"the raw header says {bits}-bit samples, but its block is the {_describe(mode)} mode", path
-            )
+    if header["format"] != _FORMAT_BAYER:
+        raise RawFormatError(f"the raw header's format is {header['format']}, not {_FORMAT_BAYER} (Bayer)", path)
+    bits = _BAYER_FORMAT_BITS.get(header["bayer_format"])
+    if bits is None:
+        known = ", ".join(f"{code} = RAW{depth}" for code, depth in _BAYER_FORMAT_BITS.items())
+        raise RawFormatError(f"unknown bayer_format code {header['bayer_format']} in the raw header ({known})", path)
+    if bits != mode.bit_depth:
+        raise RawFormatError(
+            f"the raw header says {bits}-bit samples, but its block is the {_describe(mode)} mode", path
+        )
     stride = _stride(mode.width + header["padding_right"], mode.bit_depth)
     data = mode.block_size - HEADER_SIZE
     if data % stride or data // stride < mode.height or stride < packed_row_bytes(mode.width, mode.bit_depth):

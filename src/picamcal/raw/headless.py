@@ -32,10 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RawFormatError
+from ..limits import check_size
 from ..sensors import SENSORS, black_level_at, find_sensor_name, get_sensor
 from ._files import file_head
-from .model import RawImage
-from .picamera2 import RawFormat, from_picamera2, parse_raw_format, require_colour_sensor
+from .model import RawImage, given_black_level
+from .picamera2 import RawFormat, from_picamera2, max_stride, parse_raw_format, require_colour_sensor
 
 __all__ = ["default_strides", "headless_hint", "read_headless"]
 
@@ -73,8 +74,12 @@ def read_headless(
     frame: int | None = None,
     sensor: str | None = None,
     black_level: float | Sequence[float] | None = None,
+    expected_shape: tuple[int, int] | None = None,
 ) -> RawImage:
     """Read one frame of a headless raw dump (``rpicam-raw -o``), reading only that frame's bytes.
+
+    ``size`` goes through :func:`picamcal.limits.check_size` (and ``expected_shape``) and the stride is bounded by
+    :func:`picamcal.raw.picamera2.max_stride` before the file is opened, so a wrong ``--size`` costs nothing.
 
     Parameters
     ----------
@@ -94,8 +99,11 @@ def read_headless(
         of 16-bit and PiSP data (shifted back to it when exact); any other name is kept, with
         ``metadata["sensor_known"]`` false.
     black_level : float or 4 floats, optional
-        Black level in DN (one value, or one per 2x2 site row-major). Without it and without a registry sensor the
-        black level is unknown (NaN): :func:`picamcal.raw.model.require_black_level` raises where one is needed.
+        Black level in DN (one value, or one per 2x2 site row-major; finite, >= 0). Without it and without a
+        registry sensor the black level is unknown (NaN): :func:`picamcal.raw.model.require_black_level` raises
+        where one is needed.
+    expected_shape : (height, width), optional
+        The Bayer size the caller needs (a calibration's): another ``size`` raises ``CalibrationFileError``.
 
     Returns
     -------
@@ -107,9 +115,11 @@ def read_headless(
     Raises
     ------
     RawFormatError
-        One line naming the file: no size, an unknown or greyscale format, a monochrome sensor, a stride too short
-        for the width, a file that is not a whole number of frames (the frame and file sizes in bytes), or a frame
-        past the last.
+        One line naming the file: no size, a size over the pixel limit, an unknown or greyscale format, a monochrome
+        sensor, a stride too short or too long for the width, a file that is not a whole number of frames (the
+        frame and file sizes in bytes), a frame past the last, or a black level that is not finite and >= 0.
+    CalibrationFileError
+        ``size`` is not ``expected_shape``.
 
     Examples
     --------
@@ -120,8 +130,12 @@ def read_headless(
     path = Path(path)
     spec = parse_raw_format(raw_format, path)
     width, height = _frame_size(size, path)
+    check_size(path, width, height, expected_shape)
+    if sensor is not None and not isinstance(sensor, str):
+        raise RawFormatError(f"the sensor is a name such as 'imx219', not {sensor!r:.40}", path)
     name = find_sensor_name(sensor) if sensor is not None else None
     require_colour_sensor(name, path)
+    given_black = None if black_level is None else given_black_level(black_level, path)
     file_head(path)  # no such file, a directory, unreadable or empty: the standard errors
     nbytes = path.stat().st_size
     row_stride, stride_source = _choose_stride(spec, width, height, stride, nbytes, path)
@@ -129,7 +143,7 @@ def read_headless(
     count = nbytes // frame_bytes
     index = 0 if frame is None else frame
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
-        raise RawFormatError(f"the frame must be a whole number from 0, not {index!r}", path)
+        raise RawFormatError(f"the frame must be a whole number from 0, not {index!r:.30}", path)
     if index >= count:
         which = "its only frame is --frame 0" if count == 1 else f"give --frame 0 to {count - 1}"
         raise RawFormatError(f"frame {index} is past the end: the file holds {count} frame(s) ({which})", path)
@@ -142,7 +156,7 @@ def read_headless(
     if name is not None:
         config = {"raw": config, "sensor": {"bit_depth": get_sensor(name).bit_depth}}
     decoded = from_picamera2(data, config, {}, source=path)
-    black, black_source = _black_level(black_level, name, decoded.bit_depth)
+    black, black_source = _black_level(given_black, name, decoded.bit_depth)
     meta = {
         "format": "headless",
         "path": str(path),
@@ -204,14 +218,23 @@ def _frame_size(size: Sequence[int] | None, path: Path) -> tuple[int, int]:
             "'Raw stream: WIDTHxHEIGHT stride BYTES format NAME')",
             path,
         )
-    try:
-        width, height = (int(v) for v in size)
-        exact = all(int(v) == v and not isinstance(v, bool) for v in size)
-    except (TypeError, ValueError):
-        raise RawFormatError(f"the frame size must be (width, height), not {size!r}", path) from None
-    if not exact or width < 2 or height < 2 or width % 2 or height % 2:
-        raise RawFormatError(f"a Bayer frame needs an even width and height of 2 or more, not {size!r}", path)
+    if isinstance(size, (str, bytes)) or not isinstance(size, Sequence) or len(size) != 2:
+        raise RawFormatError(f"the frame size must be (width, height), not {size!r:.40}", path)
+    if not all(_whole(v) for v in size):
+        raise RawFormatError(f"the frame size must be two whole numbers, not {size!r:.40}", path)
+    width, height = (int(v) for v in size)
+    if width < 2 or height < 2 or width % 2 or height % 2:
+        raise RawFormatError(f"a Bayer frame needs an even width and height of 2 or more, not {width}x{height}", path)
     return width, height
+
+
+def _whole(value: object) -> bool:
+    """A whole number: an integer, or a float with no fraction (``64.0``); never a bool."""
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    if isinstance(value, (float, np.floating)):
+        return math.isfinite(value) and float(value).is_integer()
+    return isinstance(value, (int, np.integer))
 
 
 def _choose_stride(
@@ -222,7 +245,13 @@ def _choose_stride(
     if stride is not None:
         if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < row:
             raise RawFormatError(
-                f"a stride of {stride!r} bytes is too short for {width} pixels of {spec.name} ({row} bytes)", path
+                f"a stride of {stride!r:.30} bytes is too short for {width} pixels of {spec.name} ({row} bytes)", path
+            )
+        if stride > max_stride(row):
+            raise RawFormatError(
+                f"a stride of {stride} bytes is longer than any camera pads {width} pixels of {spec.name} ({row} "
+                f"bytes, at most {max_stride(row)}): check --stride",
+                path,
             )
         candidates = [(int(stride), "given")]
     else:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,8 +23,8 @@ def site_channels(pattern: str) -> np.ndarray:
     >>> site_channels("BGGR").tolist()
     [2, 1, 1, 0]
     """
-    if pattern not in PATTERNS:
-        raise RawFormatError(f"unknown Bayer pattern {pattern!r} (expected one of {', '.join(PATTERNS)})")
+    if not isinstance(pattern, str) or pattern not in PATTERNS:
+        raise RawFormatError(f"unknown Bayer pattern {pattern!r:.40} (expected one of {', '.join(PATTERNS)})")
     return np.array([CHANNELS.index(c) for c in pattern], dtype=np.intp)
 
 
@@ -75,7 +77,10 @@ class RawImage:
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        bayer = np.asarray(self.bayer)
+        try:
+            bayer = np.asarray(self.bayer)
+        except (TypeError, ValueError) as exc:
+            raise RawFormatError(f"a Bayer mosaic must be a 2-D uint16 array ({exc})") from None
         if bayer.ndim != 2 or bayer.shape[0] < 2 or bayer.shape[1] < 2:
             raise RawFormatError(f"a Bayer mosaic must be a 2-D array, got shape {bayer.shape}")
         if bayer.shape[0] % 2 or bayer.shape[1] % 2:
@@ -83,13 +88,21 @@ class RawImage:
         if bayer.dtype != np.uint16:
             raise RawFormatError(f"a Bayer mosaic must be uint16, got {bayer.dtype}")
         site_channels(self.pattern)
-        black = tuple(float(b) for b in np.asarray(self.black_level, dtype=float).reshape(-1))
-        if len(black) == 1:
-            black = black * 4
-        if len(black) != 4:
-            raise RawFormatError(f"black_level needs 1 or 4 values, got {len(black)}")
+        bit_depth = _whole(self.bit_depth, "bit_depth", 1, 16)
+        white = _whole(self.white_level, "white_level", 1, (1 << bit_depth) - 1)
+        black = _black_levels(self.black_level, "black_level")
+        if not (all(math.isfinite(b) for b in black) or all(math.isnan(b) for b in black)):
+            raise RawFormatError(f"black_level {_text(black)} is part unknown (NaN): give all four or none")
+        if max(black) >= white:  # False for an unknown (NaN) level
+            raise RawFormatError(f"black_level {_text(black)} is not below the white level {white}")
+        if self.sensor is not None and not isinstance(self.sensor, str):
+            raise RawFormatError(f"sensor must be a name or None, not {self.sensor!r:.60}")
+        if not isinstance(self.metadata, dict):
+            raise RawFormatError(f"metadata must be a dict, not {type(self.metadata).__name__}")
         self.bayer = bayer
-        self.black_level = black  # type: ignore[assignment]
+        self.black_level = black
+        self.white_level = white
+        self.bit_depth = bit_depth
 
     @property
     def height(self) -> int:
@@ -112,3 +125,59 @@ class RawImage:
         for k, level in enumerate(self.black_level):
             out[k // 2 :: 2, k % 2 :: 2] -= np.float32(level)
         return out
+
+
+def given_black_level(value: Any, source: str | os.PathLike[str] | None = None) -> tuple[float, float, float, float]:
+    """A black level the user gave (``--black-level``, ``black_level=``), checked: 1 or 4 finite numbers >= 0.
+
+    An unknown level is NaN inside a :class:`RawImage`, but a NaN the user passes is a mistake: it would turn
+    every corrected pixel into NaN.
+
+    Examples
+    --------
+    >>> given_black_level(64)
+    (64.0, 64.0, 64.0, 64.0)
+    >>> given_black_level(float("nan"), "white.dng")
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.RawFormatError: white.dng: --black-level nan: a black level is 1 or 4 finite numbers >= 0 (DN)
+    """
+    try:
+        black = _black_levels(value, "--black-level")
+    except RawFormatError as exc:
+        raise RawFormatError(exc.problem, source) from None
+    if not all(math.isfinite(b) for b in black):
+        raise RawFormatError(f"--black-level {_text(value)}: a black level is 1 or 4 finite numbers >= 0 (DN)", source)
+    return black
+
+
+def _black_levels(value: Any, what: str) -> tuple[float, float, float, float]:
+    """1 or 4 numbers as 4 floats, each >= 0 or NaN (unknown); anything else raises."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise RawFormatError(f"{what} {_text(value)}: a black level is 1 or 4 finite numbers >= 0 (DN)")
+    try:
+        levels = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        raise RawFormatError(f"{what} {_text(value)}: a black level is 1 or 4 finite numbers >= 0 (DN)") from None
+    if levels.size == 1:
+        levels = np.repeat(levels, 4)
+    if levels.size != 4 or np.isinf(levels).any() or (levels < 0).any():
+        raise RawFormatError(f"{what} {_text(value)}: a black level is 1 or 4 finite numbers >= 0 (DN)")
+    return tuple(float(b) for b in levels)  # type: ignore[return-value]
+
+
+def _whole(value: Any, what: str, low: int, high: int) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+        raise RawFormatError(f"{what} must be a whole number from {low} to {high}, not {_text(value)}")
+    return int(value)
+
+
+def _text(value: Any) -> str:
+    """A value for a message: numbers as the user would write them, at most 60 characters."""
+    if isinstance(value, (tuple, list)) and all(isinstance(v, (int, float)) for v in value):
+        text = " ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    elif isinstance(value, float):
+        text = f"{value:g}"
+    else:
+        text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."

@@ -7,16 +7,22 @@ Arrays: ``bayer`` (uint16, H x W) and ``metadata`` (a 0-d unicode array holding 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import zipfile
+import zlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import IO, Any
 
 import numpy as np
 
 from .._atomic import atomic_path
 from .._files import json_default
 from ..errors import RawFormatError
+from ..limits import check_size, require_regular_file
+from ._files import read_array_data, read_npy_header
 from .model import RawImage
 
 FORMAT_NAME = "picamcal-raw"
@@ -57,13 +63,33 @@ def is_raw_npz(path: str | os.PathLike[str]) -> bool:
     try:
         with zipfile.ZipFile(path) as archive:
             names = set(archive.namelist())
-    except (OSError, zipfile.BadZipFile):
+    except _ZIP_ERRORS:
         return False
     return {"bayer.npy", "metadata.npy"} <= names and "unmixing.npy" not in names
 
 
-def read_npz(path: str | os.PathLike[str]) -> RawImage:
+def read_npz(path: str | os.PathLike[str], *, expected_shape: tuple[int, int] | None = None) -> RawImage:
     """Read a picamcal raw ``.npz`` written by :func:`write_npz`.
+
+    Nothing is inflated before it is checked: the JSON record first (at most 16 MB), then the mosaic's ``.npy``
+    header inside the zip, whose size goes through :func:`picamcal.limits.check_size` (and ``expected_shape``)
+    and must account for every byte the zip says the member holds.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.npz`` file.
+    expected_shape : (height, width), optional
+        The Bayer size the caller needs (a calibration's): another size raises ``CalibrationFileError`` before the
+        mosaic is inflated.
+
+    Raises
+    ------
+    RawFormatError
+        One line naming the file: not a zip, not a picamcal raw image, a corrupt member or record (the member and
+        the field named), a declared size over the pixel limit.
+    CalibrationFileError
+        The mosaic's size is not ``expected_shape``.
 
     Examples
     --------
@@ -71,31 +97,115 @@ def read_npz(path: str | os.PathLike[str]) -> RawImage:
     'BGGR'
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            if "bayer" not in data or "metadata" not in data:
-                raise RawFormatError("an .npz file but not a picamcal raw image (no 'bayer' array)", path)
-            bayer = np.array(data["bayer"])
-            record = json.loads(str(data["metadata"]))
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise RawFormatError(f"corrupt picamcal raw file ({exc})", path) from exc
-    if not isinstance(record, dict) or record.get("format") != FORMAT_NAME:
-        raise RawFormatError("an .npz file but not a picamcal raw image", path)
-    if record.get("version") != VERSION:
-        raise RawFormatError(f"unsupported picamcal raw version {record.get('version')!r}", path)
+    require_regular_file(path)
+    with _reading(path, "not a zip archive"):
+        archive = zipfile.ZipFile(path)
+    with archive:
+        names = set(archive.namelist())
+        if "bayer.npy" not in names or "metadata.npy" not in names:
+            kind = "a calibration? " if "unmixing.npy" in names else ""
+            raise RawFormatError(f"an .npz file but not a picamcal raw image ({kind}no 'bayer' array)", path)
+        record = _record(archive, path)
+        bayer = _mosaic(archive, path, expected_shape)
     meta = dict(record.get("metadata") or {})
     meta.update(format="npz", path=str(path))
     try:
         return RawImage(
             bayer,
             record["pattern"],
-            tuple(record["black_level"]),
-            int(record["white_level"]),
-            int(record["bit_depth"]),
+            record["black_level"],
+            record["white_level"],
+            record["bit_depth"],
             record.get("sensor"),
             meta,
         )
     except RawFormatError as exc:
-        raise RawFormatError(exc.problem, path) from None
-    except (KeyError, TypeError, ValueError) as exc:
-        raise RawFormatError(f"corrupt picamcal raw record ({exc})", path) from exc
+        raise RawFormatError(f"corrupt picamcal raw record: {exc.problem}", path) from None
+
+
+# What reading a damaged zip raises: zipfile's own errors, zlib's for a damaged deflate stream, NotImplementedError
+# for a compression method it lacks, RuntimeError for an encrypted member, and OSError/EOFError/ValueError for
+# short or inconsistent files.
+_ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    zlib.error,
+    NotImplementedError,
+    RuntimeError,
+    OSError,
+    EOFError,
+    ValueError,
+)
+_MAX_RECORD_BYTES = 16 << 20
+
+
+@contextlib.contextmanager
+def _reading(path: Path, what: str) -> Iterator[None]:
+    """Turn what zipfile and zlib raise on damaged bytes into one line naming the file and ``what`` was read."""
+    try:
+        yield
+    except _ZIP_ERRORS as exc:
+        detail = " ".join(str(exc).split())
+        detail = detail if len(detail) <= 80 else detail[:77] + "..."
+        raise RawFormatError(f"corrupt picamcal raw file ({what}: {type(exc).__name__}: {detail})", path) from None
+
+
+def _member(
+    archive: zipfile.ZipFile, name: str, path: Path, max_bytes: int | None = None
+) -> tuple[zipfile.ZipInfo, IO[bytes]]:
+    """Member ``name``'s entry in the zip's directory and a stream of its bytes, nothing inflated yet."""
+    info = archive.getinfo(name)
+    if max_bytes is not None and info.file_size > max_bytes:
+        raise RawFormatError(f"member {name} declares {info.file_size} bytes, more than {max_bytes}", path)
+    with _reading(path, name):
+        member = archive.open(info)
+    return info, member
+
+
+def _record(archive: zipfile.ZipFile, path: Path) -> dict[str, Any]:
+    """The JSON record of ``metadata.npy`` (a 0-d unicode array), checked field by field."""
+    info, member = _member(archive, "metadata.npy", path, _MAX_RECORD_BYTES)
+    with member, _reading(path, "metadata.npy"):
+        shape, _, dtype = read_npy_header(member, path, "member metadata.npy")
+        if dtype.kind != "U" or shape != ():
+            raise RawFormatError(f"metadata.npy is a {dtype} array of shape {shape}, not a JSON text", path)
+        if member.tell() + dtype.itemsize != info.file_size:
+            raise RawFormatError(f"member metadata.npy holds {info.file_size} bytes, not a {dtype} text", path)
+        text = str(read_array_data(member, dtype, 1, path, "metadata.npy")[0])
+    try:
+        record = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise RawFormatError(f"corrupt picamcal raw record ({type(exc).__name__}: {str(exc)[:80]})", path) from None
+    if not isinstance(record, dict) or record.get("format") != FORMAT_NAME:
+        raise RawFormatError("an .npz file but not a picamcal raw image", path)
+    if record.get("version") != VERSION or isinstance(record.get("version"), bool):
+        raise RawFormatError(f"unsupported picamcal raw version {str(record.get('version'))[:20]!r}", path)
+    for key in ("pattern", "black_level", "white_level", "bit_depth"):
+        if key not in record:
+            raise RawFormatError(f"corrupt picamcal raw record: no {key!r}", path)
+    if not isinstance(record.get("metadata") or {}, dict):
+        raise RawFormatError("corrupt picamcal raw record: 'metadata' must be an object", path)
+    return record
+
+
+def _mosaic(archive: zipfile.ZipFile, path: Path, expected_shape: tuple[int, int] | None) -> np.ndarray:
+    """``bayer.npy``: its header's size checked (limit, calibration, the zip's byte count), then inflated."""
+    info, member = _member(archive, "bayer.npy", path)
+    with member, _reading(path, "bayer.npy"):
+        shape, fortran, dtype = read_npy_header(member, path, "member bayer.npy")
+        if dtype.kind != "u" or dtype.itemsize > 2 or len(shape) != 2:
+            raise RawFormatError(f"bayer.npy is a {dtype} array of shape {shape}, not a 2-D uint16 mosaic", path)
+        height, width = shape
+        check_size(path, width, height, expected_shape)
+        need = member.tell() + height * width * dtype.itemsize
+        if info.file_size != need:
+            raise RawFormatError(
+                f"member bayer.npy holds {info.file_size} bytes, but its header declares a {width}x{height} {dtype} "
+                f"array of {need}",
+                path,
+            )
+        data = read_array_data(member, dtype, height * width, path, "bayer.npy")
+        if member.read(1):  # also where zipfile checks the member's CRC
+            raise RawFormatError("member bayer.npy holds more bytes than its header declares", path)
+    bayer = data.reshape(shape, order="F" if fortran else "C")
+    return np.ascontiguousarray(bayer.astype(np.uint16, copy=False))

@@ -33,8 +33,10 @@ from typing import Any
 import numpy as np
 
 from .._atomic import atomic_path
-from ..errors import OutputError, PicamcalWarning, RawFormatError, closest
+from ..errors import OutputError, PicamcalWarning, RawFormatError, closest, short
+from ..limits import check_size, require_regular_file
 from ..sensors import black_level_at, find_sensor_name, get_sensor
+from ._files import read_array_data, read_npy_header
 from .model import RawImage
 from .packing import pack, packed_row_bytes, unpack
 
@@ -44,6 +46,7 @@ __all__ = [
     "capture_raw",
     "from_picamera2",
     "is_npy",
+    "max_stride",
     "parse_raw_format",
     "read_picamera2_npy",
     "write_picamera2_npy",
@@ -141,6 +144,8 @@ def parse_raw_format(name: str, source: str | os.PathLike[str] | None = None) ->
     >>> parse_raw_format("sbggr10_csi2p")
     RawFormat(name='SBGGR10_CSI2P', pattern='BGGR', packing='csi2p', bits=10)
     """
+    if not isinstance(name, str):
+        raise RawFormatError(f"a raw format is a name such as 'SBGGR10_CSI2P', not {short(name)}", source)
     key = name.strip().upper()
     if match := _UNCOMPRESSED.fullmatch(key):
         bits, packing = int(match[2]), "csi2p" if match[3] else "unpacked"
@@ -155,6 +160,20 @@ def parse_raw_format(name: str, source: str | os.PathLike[str] | None = None) ->
             source,
         )
     raise RawFormatError(f"unknown raw format {name!r} (expected {_KNOWN_FORMATS}){_nearest_format(key)}", source)
+
+
+def max_stride(row_bytes: int) -> int:
+    """The longest row stride picamcal accepts for rows of ``row_bytes`` bytes of pixels.
+
+    libcamera pads a row to 32 bytes (Pi 4) or 64 (Pi 5); twice the row plus 256 bytes leaves room for any other
+    tool's alignment while keeping what a forged stride can make picamcal read to about two frames.
+
+    Examples
+    --------
+    >>> max_stride(4100)
+    8456
+    """
+    return 2 * row_bytes + 256
 
 
 def _nearest_format(key: str) -> str:
@@ -413,16 +432,20 @@ def write_picamera2_npy(
     return path
 
 
-def read_picamera2_npy(path: str | os.PathLike[str]) -> RawImage:
+def read_picamera2_npy(path: str | os.PathLike[str], *, expected_shape: tuple[int, int] | None = None) -> RawImage:
     """Read a raw buffer dumped by :func:`write_picamera2_npy` (the ``.npy`` and its ``.json`` sidecar).
 
-    The ``.npy`` header is checked against the file's size before anything is allocated, and it is loaded
-    without pickles.
+    Nothing is allocated before the sizes are checked: the ``.npy`` header's against the file's size, the frame size
+    the sidecar declares against :func:`picamcal.limits.check_size` (and ``expected_shape``), and the buffer's
+    bytes against what that frame can take (:func:`max_stride` per row). No pickles are loaded.
 
     Parameters
     ----------
     path : path-like
         The ``.npy`` file.
+    expected_shape : (height, width), optional
+        The Bayer size the caller needs (a calibration's): another size raises ``CalibrationFileError`` before the
+        buffer is read.
 
     Returns
     -------
@@ -432,8 +455,10 @@ def read_picamera2_npy(path: str | os.PathLike[str]) -> RawImage:
     Raises
     ------
     RawFormatError
-        One line naming the file: missing or corrupt ``.npy``, missing or corrupt sidecar, or a buffer that does
-        not fit its configuration.
+        One line naming the file: missing or corrupt ``.npy``, missing or corrupt sidecar, a declared size over
+        the pixel limit, or a buffer that does not fit its configuration.
+    CalibrationFileError
+        The sidecar's frame size is not ``expected_shape``.
 
     Examples
     --------
@@ -442,8 +467,12 @@ def read_picamera2_npy(path: str | os.PathLike[str]) -> RawImage:
     ('picamera2-npy', 'BGGR')
     """
     path = Path(path)
-    array = _load_npy(path)
+    header = _npy_header(path)
     record = _load_sidecar(path)
+    spec, width, height, _, _ = _stream(record["config"], str(path))
+    check_size(path, width, height, expected_shape)
+    frame = f"{width}x{height} {spec.name}"
+    array = _load_npy(path, header, height * max_stride(spec.row_bytes(width)), frame)
     raw = from_picamera2(array, record["config"], record["metadata"], sensor=record["sensor"], source=path)
     raw.metadata["format"] = "picamera2-npy"
     return raw
@@ -486,15 +515,15 @@ def capture_raw(picam2: Any, *, sensor: str | None = None) -> RawImage:
         request.release()
 
 
-def _integer(value: Any, what: str, source: str, low: int = 0) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise RawFormatError(f"{what} must be an integer >= {low}, not {_short(value)}", source)
+_UINT32 = 2**32 - 1  # libcamera's sizes, strides and frame sizes are unsigned 32-bit
+
+
+def _integer(value: Any, what: str, source: str, low: int = 0, high: int | None = None) -> int:
+    bad = isinstance(value, bool) or not isinstance(value, (int, np.integer))
+    if bad or value < low or (high is not None and value > high):
+        limits = f">= {low}" if high is None else f"from {low} to {high}"
+        raise RawFormatError(f"{what} must be an integer {limits}, not {short(value)}", source)
     return int(value)
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _stream_config(config: Any, source: str) -> tuple[Mapping[str, Any], Mapping[str, Any]]:
@@ -512,22 +541,23 @@ def _stream_config(config: Any, source: str) -> tuple[Mapping[str, Any], Mapping
     if sensor is None:
         sensor = {}
     if not isinstance(sensor, Mapping):
-        raise RawFormatError(f"the configuration's 'sensor' must be a dict, not {_short(sensor)}", source)
+        raise RawFormatError(f"the configuration's 'sensor' must be a dict, not {short(sensor)}", source)
     return stream, sensor
 
 
-def _layout(array: Any, config: Any, source: str) -> _Layout:
+def _stream(config: Any, source: str) -> tuple[RawFormat, int, int, int | None, Mapping[str, Any]]:
+    """The raw stream's format, width, height and sensor bit depth (or None), and its configuration, checked."""
     stream, sensor = _stream_config(config, source)
     fmt = stream["format"]
     if not isinstance(fmt, str):
-        raise RawFormatError(f"the raw format must be a string such as 'SBGGR10_CSI2P', not {_short(fmt)}", source)
+        raise RawFormatError(f"the raw format must be a string such as 'SBGGR10_CSI2P', not {short(fmt)}", source)
     spec = parse_raw_format(fmt, source)
 
     size = stream.get("size")
     if not isinstance(size, (tuple, list)) or len(size) != 2:
-        raise RawFormatError(f"the raw 'size' must be (width, height), not {_short(size)}", source)
-    width = _integer(size[0], "the raw width", source, low=2)
-    height = _integer(size[1], "the raw height", source, low=2)
+        raise RawFormatError(f"the raw 'size' must be (width, height), not {short(size)}", source)
+    width = _integer(size[0], "the raw width", source, low=2, high=_UINT32)
+    height = _integer(size[1], "the raw height", source, low=2, high=_UINT32)
     if width % 2 or height % 2:
         raise RawFormatError(f"a Bayer image needs even width and height, not {width}x{height}", source)
     sensor_bits = sensor.get("bit_depth")
@@ -535,7 +565,11 @@ def _layout(array: Any, config: Any, source: str) -> _Layout:
         sensor_bits = _integer(sensor_bits, "the sensor bit_depth", source, low=1)
         if not 8 <= sensor_bits <= 16:
             raise RawFormatError(f"a sensor bit_depth of {sensor_bits} is not between 8 and 16", source)
+    return spec, width, height, sensor_bits, stream
 
+
+def _layout(array: Any, config: Any, source: str) -> _Layout:
+    spec, width, height, sensor_bits, stream = _stream(config, source)
     what = "PiSP-compressed" if spec.packing == "pisp" else f"{spec.bits} bits"
     rows = _rows(array, stream, height, spec.row_bytes(width), f"{width} pixels at {what}", source)
     stride = rows.shape[1]
@@ -568,6 +602,12 @@ def _rows(array: Any, stream: Mapping[str, Any], height: int, row_bytes: int, pi
         stride = row_bytes
     if stride < row_bytes:
         raise RawFormatError(f"stride of {stride} bytes is too short for {pixels} ({row_bytes} bytes)", source)
+    if stride > max_stride(row_bytes):
+        raise RawFormatError(
+            f"stride of {stride} bytes is longer than a camera pads {pixels} ({row_bytes} bytes, at most "
+            f"{max_stride(row_bytes)})",
+            source,
+        )
     framesize = stream.get("framesize")
     if framesize is not None:
         framesize = _integer(framesize, "the framesize", source)
@@ -711,10 +751,10 @@ def _sensor_black_levels(metadata: Mapping[str, Any], source: str) -> list[float
     if levels is None:
         return None
     if not isinstance(levels, (list, tuple, np.ndarray)) or len(levels) != 4:
-        raise RawFormatError(f"SensorBlackLevels must be 4 numbers (R, Gr, Gb, B), not {_short(levels)}", source)
+        raise RawFormatError(f"SensorBlackLevels must be 4 numbers (R, Gr, Gb, B), not {short(levels)}", source)
     values = [_number(v, "SensorBlackLevels", source) for v in levels]
     if min(values) < 0 or max(values) > 65535:
-        raise RawFormatError(f"SensorBlackLevels {_short(levels)} are outside the 16-bit range", source)
+        raise RawFormatError(f"SensorBlackLevels {short(levels)} are outside the 16-bit range", source)
     return values
 
 
@@ -736,10 +776,14 @@ def _black_levels(
 
 def _number(value: Any, key: str, source: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise RawFormatError(f"metadata {key} must be numeric, not {_short(value)}", source)
-    if not math.isfinite(value):
-        raise RawFormatError(f"metadata {key} is {value}, not a finite number", source)
-    return float(value)
+        raise RawFormatError(f"metadata {key} must be numeric, not {short(value)}", source)
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond any float
+        number = math.inf
+    if not math.isfinite(number):
+        raise RawFormatError(f"metadata {key} is {short(value)}, not a finite number", source)
+    return number
 
 
 def _exposure_metadata(metadata: Mapping[str, Any], source: str) -> dict[str, Any]:
@@ -755,7 +799,7 @@ def _exposure_metadata(metadata: Mapping[str, Any], source: str) -> dict[str, An
         values = metadata.get(control)
         if values is not None:
             if not isinstance(values, (list, tuple, np.ndarray)) or len(values) != length:
-                raise RawFormatError(f"metadata {control} must be {length} numbers, not {_short(values)}", source)
+                raise RawFormatError(f"metadata {control} must be {length} numbers, not {short(values)}", source)
             meta[key] = [_number(v, control, source) for v in values]
     if metadata.get("SensorTimestamp") is not None:
         meta["sensor_timestamp_ns"] = _integer(metadata["SensorTimestamp"], "metadata SensorTimestamp", source)
@@ -768,7 +812,7 @@ def _resolve_sensor(
     """The registry name of the sensor and the model text it was found in."""
     if sensor is not None:
         if not isinstance(sensor, str):
-            raise RawFormatError(f"sensor must be a name such as 'imx219', not {_short(sensor)}", source)
+            raise RawFormatError(f"sensor must be a name such as 'imx219', not {short(sensor)}", source)
         name = find_sensor_name(sensor)
         require_colour_sensor(name, source)
         if name is None and warn:
@@ -818,50 +862,73 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-def _load_npy(path: Path) -> np.ndarray:
-    """The buffer in a ``.npy`` file, its header checked against the file size before anything is allocated."""
+@dataclass(frozen=True)
+class _NpyHeader:
+    """What a ``.npy`` file declares, checked against the file's size; nothing of that size read yet."""
+
+    shape: tuple[int, ...]
+    fortran: bool
+    dtype: np.dtype
+    offset: int  # where the data starts
+
+    @property
+    def nbytes(self) -> int:
+        return math.prod(self.shape) * self.dtype.itemsize
+
+
+def _npy_header(path: Path) -> _NpyHeader:
+    """The ``.npy`` header of a raw buffer dump: a 1-D or 2-D unsigned 8 or 16-bit array the file holds whole."""
+    require_regular_file(path)
     try:
         with open(path, "rb") as f:
-            version = np.lib.format.read_magic(f)
-            if version == (1, 0):
-                shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
-            elif version == (2, 0):
-                shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
-            else:
-                raise RawFormatError(f"unsupported .npy version {version[0]}.{version[1]}", path)
-            if dtype.kind != "u" or dtype.itemsize not in (1, 2) or len(shape) not in (1, 2) or min(shape) < 0:
-                raise RawFormatError(f"a {dtype} array of shape {shape}, not a raw buffer (2-D uint8)", path)
-            count = math.prod(shape)
-            available = os.fstat(f.fileno()).st_size - f.tell()
-            if available < count * dtype.itemsize:
-                raise RawFormatError(f"truncated .npy: {available} of {count * dtype.itemsize} bytes of data", path)
-            array = np.fromfile(f, dtype=dtype, count=count).reshape(shape, order="F" if fortran else "C")
-    except FileNotFoundError:
-        raise RawFormatError("no such file", path) from None
-    except IsADirectoryError:
-        raise RawFormatError("is a directory, not a raw buffer file", path) from None
-    except (OSError, ValueError, EOFError) as exc:
-        raise RawFormatError(f"corrupt .npy file ({_short(str(exc))})", path) from exc
-    return array
+            shape, fortran, dtype = read_npy_header(f, path)
+            offset = f.tell()
+            available = os.fstat(f.fileno()).st_size - offset
+    except OSError as exc:
+        raise RawFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+    if dtype.kind != "u" or dtype.itemsize not in (1, 2) or len(shape) not in (1, 2) or min(shape) < 1:
+        raise RawFormatError(f"a {dtype} array of shape {shape}, not a raw buffer (2-D uint8)", path)
+    header = _NpyHeader(shape, fortran, dtype, offset)
+    if available < header.nbytes:
+        raise RawFormatError(f"truncated .npy: {available} of {header.nbytes} bytes of data", path)
+    return header
+
+
+def _load_npy(path: Path, header: _NpyHeader, max_bytes: int, frame: str) -> np.ndarray:
+    """The buffer a checked header declares, refused unread if larger than ``max_bytes`` (what ``frame`` needs)."""
+    if header.nbytes > max_bytes:
+        raise RawFormatError(
+            f"a buffer of {header.nbytes} bytes is larger than a {frame} frame can be (at most {max_bytes} bytes)",
+            path,
+        )
+    try:
+        with open(path, "rb") as f:
+            f.seek(header.offset)
+            data = read_array_data(f, header.dtype, math.prod(header.shape), path, ".npy")
+    except OSError as exc:
+        raise RawFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+    return data.reshape(header.shape, order="F" if header.fortran else "C")
 
 
 def _load_sidecar(path: Path) -> dict[str, Any]:
     sidecar = path.with_suffix(".json")
     what = f"sidecar of {path.name}"
     try:
-        if sidecar.stat().st_size > _MAX_SIDECAR_BYTES:
+        if require_regular_file(sidecar) > _MAX_SIDECAR_BYTES:
             raise RawFormatError(f"{what} is larger than {_MAX_SIDECAR_BYTES >> 20} MB", sidecar)
         record = json.loads(sidecar.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise RawFormatError(
-            f"no JSON sidecar {sidecar.name} beside it (written by write_picamera2_npy)", path
-        ) from None
+    except RawFormatError:
+        if not sidecar.exists():
+            raise RawFormatError(
+                f"no JSON sidecar {sidecar.name} beside it (written by write_picamera2_npy)", path
+            ) from None
+        raise
     except (OSError, ValueError, RecursionError) as exc:
-        raise RawFormatError(f"corrupt {what} ({type(exc).__name__}: {_short(str(exc))})", sidecar) from exc
+        raise RawFormatError(f"corrupt {what} ({type(exc).__name__}: {short(str(exc))})", sidecar) from exc
     if not isinstance(record, dict) or record.get("format") != SIDECAR_FORMAT:
         raise RawFormatError(f'not a picamcal {what} (no "format": "{SIDECAR_FORMAT}")', sidecar)
     if record.get("version") != SIDECAR_VERSION:
-        raise RawFormatError(f"unsupported {what} version {_short(record.get('version'))}", sidecar)
+        raise RawFormatError(f"unsupported {what} version {short(record.get('version'))}", sidecar)
     if not isinstance(record.get("config"), dict) or not isinstance(record.get("metadata", {}), dict):
         raise RawFormatError(f"corrupt {what}: 'config' and 'metadata' must be objects", sidecar)
     if not isinstance(record.get("sensor"), (str, type(None))):

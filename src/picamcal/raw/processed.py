@@ -19,15 +19,20 @@ everything else with Pillow.
 
 from __future__ import annotations
 
-import json
+import contextlib
+import logging
 import os
+import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .._json import Fields, read_json
 from ..errors import PicamcalError, RawFormatError, closest
+from ..limits import check_size
 from ._files import file_head
 
 
@@ -70,21 +75,25 @@ def _srgb_to_linear(v: np.ndarray) -> np.ndarray:
 def tuning_gamma_curve(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     """The ``rpi.contrast`` gamma curve of a libcamera tuning file as (linear, encoded), both scaled to 0..1.
 
+    Raises
+    ------
+    RawFormatError
+        Not a regular file, not JSON, no ``rpi.contrast`` ``gamma_curve``, or one that is not increasing pairs of
+        numbers in 0..65535.
+
     Examples
     --------
     >>> linear, encoded = tuning_gamma_curve("imx219.json")  # doctest: +SKIP
     """
     path = Path(path)
-    try:
-        tuning = json.loads(path.read_text())
-        for algorithm in tuning["algorithms"]:
-            if "rpi.contrast" in algorithm:
-                curve = np.asarray(algorithm["rpi.contrast"]["gamma_curve"], dtype=float)
-                break
-        else:
-            raise RawFormatError("the tuning file has no rpi.contrast gamma_curve", path)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise RawFormatError(f"cannot read a gamma curve from this tuning file ({exc})", path) from exc
+    tuning = read_json(path, RawFormatError, "a JSON tuning file")
+    fields = Fields(path, RawFormatError, "a tuning file with a gamma curve")
+    algorithms = fields.items(fields.mapping(tuning, "the file", ("algorithms",))["algorithms"], "'algorithms'")
+    sections = [a["rpi.contrast"] for a in algorithms if isinstance(a, dict) and "rpi.contrast" in a]
+    if not sections:
+        raise RawFormatError("the tuning file has no rpi.contrast gamma_curve", path)
+    section = fields.mapping(sections[0], "rpi.contrast", ("gamma_curve",))
+    curve = np.asarray(fields.numbers(section["gamma_curve"], "rpi.contrast gamma_curve", minimum=0, maximum=65535))
     if curve.size < 4 or curve.size % 2:
         raise RawFormatError("rpi.contrast gamma_curve must hold (input, output) pairs", path)
     linear, encoded = curve[0::2] / 65535.0, curve[1::2] / 65535.0
@@ -137,7 +146,10 @@ def _read_png16(path: Path) -> np.ndarray:
     import png
 
     with open(path, "rb") as f:
-        width, height, rows, info = png.Reader(file=f).asDirect()
+        reader = png.Reader(file=f)
+        reader.preamble()  # the header alone: the size is checked before a row is decoded
+        check_size(path, reader.width, reader.height)
+        width, height, rows, info = reader.asDirect()
         return np.vstack([np.asarray(row, dtype=np.uint16) for row in rows]).reshape(height, width, info["planes"])
 
 
@@ -145,6 +157,57 @@ def _png_bit_depth(path: Path) -> int:
     with open(path, "rb") as f:
         head = f.read(26)
     return head[24] if len(head) >= 26 and head[12:16] == b"IHDR" else 8
+
+
+def _read_tiff(path: Path) -> np.ndarray:
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        series = tif.series[0]
+        shape = tuple(series.shape)
+        if len(shape) != 3 or shape[-1] not in (3, 4):
+            raise RawFormatError(f"expected an RGB image, got an array of shape {shape}", path)
+        check_size(path, int(shape[1]), int(shape[0]))
+        return series.asarray()
+
+
+def _read_with_pillow(path: Path, meta: dict[str, Any]) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    with warnings.catch_warnings():
+        # Pillow's own bomb check warns first and refuses at twice its limit; picamcal's limit decides instead
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        try:
+            image = Image.open(path)
+        except UnidentifiedImageError:
+            raise RawFormatError("not an image file picamcal can read (JPEG, PNG or TIFF)", path) from None
+        except Image.DecompressionBombError as exc:
+            # Pillow gives only the pixel count; the header gives the size for the usual message
+            with open(path, "rb") as f:
+                width, height = _declared_size(f.read(1 << 16))
+            if width and height:
+                check_size(path, width, height)
+            raise RawFormatError(f"declares an image too large to decode ({exc})", path) from None
+    with image:
+        check_size(path, image.width, image.height)
+        meta["format"] = (image.format or "image").lower()
+        meta.update(_exif(image))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            return np.asarray(image.convert("RGB"))
+
+
+def _declared_size(head: bytes) -> tuple[int, int]:
+    """(width, height) from a PNG's IHDR or a JPEG's start-of-frame, or (0, 0) if neither is found."""
+    if head.startswith(b"\x89PNG") and head[12:16] == b"IHDR":
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    at = 2
+    while head.startswith(b"\xff\xd8") and at + 9 <= len(head) and head[at] == 0xFF:
+        marker, length = head[at + 1], int.from_bytes(head[at + 2 : at + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return int.from_bytes(head[at + 7 : at + 9], "big"), int.from_bytes(head[at + 5 : at + 7], "big")
+        at += 2 + length
+    return 0, 0
 
 
 def _exif(image: Any) -> dict[str, Any]:
@@ -165,6 +228,18 @@ def _exif(image: Any) -> dict[str, Any]:
     return meta
 
 
+@contextlib.contextmanager
+def _quiet_tifffile() -> Iterator[None]:
+    """Keep tifffile's log lines about a damaged file off stderr: the error that follows says it in one line."""
+    logger = logging.getLogger("tifffile")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def _refuse_raw(path: Path, head: bytes) -> None:
     """A raw image given as processed: say so, rather than decode a DNG's preview or a mosaic as colours."""
     what = None
@@ -178,7 +253,7 @@ def _refuse_raw(path: Path, head: bytes) -> None:
         import tifffile
 
         try:
-            with tifffile.TiffFile(path) as tif:
+            with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
                 what = "a DNG raw image" if 50706 in tif.pages.first.tags else None  # DNGVersion
         except Exception:  # a broken TIFF is for the decoder below to report
             what = None
@@ -206,28 +281,19 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     _refuse_raw(path, head)
     meta: dict[str, Any] = {"path": str(path)}
     try:
-        if head[:4] in (b"II*\x00", b"MM\x00*"):
-            import tifffile
-
-            data = tifffile.imread(path)
-            meta["format"] = "tiff"
-        elif head.startswith(b"\x89PNG") and _png_bit_depth(path) == 16:
-            data = _read_png16(path)
-            meta["format"] = "png"
-        else:
-            from PIL import Image, UnidentifiedImageError
-
-            try:
-                with Image.open(path) as image:
-                    meta["format"] = (image.format or "image").lower()
-                    meta.update(_exif(image))
-                    data = np.asarray(image.convert("RGB"))
-            except UnidentifiedImageError:
-                raise RawFormatError("not an image file picamcal can read (JPEG, PNG or TIFF)", path) from None
-    except RawFormatError:
+        with _quiet_tifffile():
+            if head[:4] in (b"II*\x00", b"MM\x00*"):
+                data = _read_tiff(path)
+                meta["format"] = "tiff"
+            elif head.startswith(b"\x89PNG") and _png_bit_depth(path) == 16:
+                data = _read_png16(path)
+                meta["format"] = "png"
+            else:
+                data = _read_with_pillow(path, meta)
+    except PicamcalError:
         raise
-    except Exception as exc:
-        raise RawFormatError(f"cannot decode the image ({type(exc).__name__}: {exc})", path) from exc
+    except Exception as exc:  # every decoder's own errors (and MemoryError): the file, not the program, is wrong
+        raise RawFormatError(f"cannot decode the image ({type(exc).__name__}: {exc})", path) from None
     if data.ndim == 3 and data.shape[-1] == 4:
         data = data[..., :3]
     if data.ndim != 3 or data.shape[-1] != 3:
@@ -240,6 +306,9 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
         bits = 32  # float TIFF (picamcal's own output, for one): taken as values on a 0..1 scale
     else:
         raise RawFormatError(f"expected 8- or 16-bit or float samples, got {data.dtype}", path)
+    if bits == 32 and not np.all(np.isfinite(data)):
+        count = int(np.count_nonzero(~np.isfinite(data)))
+        raise RawFormatError(f"holds {count} NaN or infinite samples: not an image picamcal can correct", path)
     values = data.astype(np.float32) if bits == 32 else data.astype(np.float32) / float((1 << bits) - 1)
     meta["encoding"] = encoding
     return ProcessedImage(linearise(values, encoding), encoding, bits, meta)

@@ -1,8 +1,9 @@
 """Writing ``DIR/index.html`` and its figures (PNG files beside it), all or nothing.
 
-The report is built in a temporary folder beside ``DIR`` and renamed into place when complete, so a
-partially written report never remains. The page loads nothing from the network: figures are PNG files
-next to it, styles are inline.
+The report is built in a temporary folder beside ``DIR`` (:func:`picamcal._atomic.make_temporary`, with
+the permissions of an ordinary folder) and renamed into place when complete, so a partially written report
+never remains; the folders a killed run left are removed by the next report written beside ``DIR``. The page
+loads nothing from the network: figures are PNG files next to it, styles are inline.
 """
 
 from __future__ import annotations
@@ -11,13 +12,12 @@ import html
 import json
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from .._atomic import refuse_inputs_as_output
+from .._atomic import make_temporary, refuse_inputs_as_output, remove_stale_temporaries, temporary_name
 from .._files import json_default
 from .._version import __version__
 from ..calibration import Calibration
@@ -110,18 +110,11 @@ def _prepare_target(out: Path, overwrite: bool) -> None:
         raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out.parent) from exc
 
 
-def _make_shareable(folder: Path) -> None:
-    """The permissions of an ordinary new folder (mkdtemp makes it private, 0700)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(folder, 0o777 & ~umask)
-
-
 def _swap_into_place(build: Path, out: Path) -> None:
     """Rename the finished report into place, replacing an old one only once the new one is complete."""
     old = None
     if out.exists():
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        old = temporary_name(out, ".old")  # a temporary like any other: a run killed here leaves it to the next
         os.replace(out, old)
     os.replace(build, out)
     if old is not None:
@@ -229,10 +222,12 @@ def write_report(
     sources = [image for image in test_images if not isinstance(image, RawImage)]
     refuse_inputs_as_output(out, [calibration.path, *sources])
     _prepare_target(out, overwrite)
-    raws = [image if isinstance(image, RawImage) else read_raw(image) for image in test_images]
+    shape = (calibration.height, calibration.width)  # a test image of another size fails before it is decoded
+    raws = [image if isinstance(image, RawImage) else read_raw(image, expected_shape=shape) for image in test_images]
     for raw in raws:
         calibration.check_compatible(raw)
-    build = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    remove_stale_temporaries(out.parent)
+    build = make_temporary(out, folder=True, suffix="")
     try:
         step("diagnostics")
         checks = [c.to_dict() for c in diagnose(calibration, cra_corner_deg=cra_corner_deg)]
@@ -248,7 +243,6 @@ def write_report(
         record = {"software_version": __version__, "checks": checks, "test_images": analyses}
         (build / "report.json").write_text(json.dumps(record, indent=2, default=json_default))
         (build / REPORT_MARKER).write_text(f"a report written by picamcal {__version__}\n")
-        _make_shareable(build)
         step("finishing")
         _swap_into_place(build, out)
     except BaseException:

@@ -1,0 +1,240 @@
+"""kill -9 of calibrate, correct (with workers), report and correct --zarr while they work.
+
+Each run carries a tag in its environment, which every process it starts inherits (the forkserver, the
+resource tracker, the pool's workers): after the kill no process with that tag may be left, no file may be
+half-written under its final name, and running the same command again finishes the work and leaves no
+temporary. The kill lands when a temporary of the run appears (the work is under way), not after a fixed time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+import tifffile
+
+from picamcal import calibrate, load_calibration, read_raw
+from picamcal.batch import run_batch
+from picamcal.simulate import simulate_run
+
+SIZE = (640, 480)  # big enough that the work lasts while the test looks for its temporaries
+FRAMES = 10
+TAG = "PICAMCAL_KILL_TEST"
+#: How long the processes of a killed run may take to end (they end at once; this only bounds a failing test).
+GONE_WITHIN_S = 30.0
+
+
+def command(*args: str) -> list[str]:
+    return [sys.executable, "-c", "from picamcal.cli import main; main()", *args]
+
+
+def start(*args: str) -> tuple[subprocess.Popen, str]:
+    """Start a picamcal command whose processes all carry a tag of their own in their environment."""
+    tag = uuid.uuid4().hex
+    process = subprocess.Popen(
+        command(*args),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, TAG: tag},
+    )
+    return process, tag
+
+
+def processes_of(tag: str) -> list[psutil.Process]:
+    """The live processes carrying ``tag`` (zombies have ended: only their exit status is left)."""
+    found = []
+    for process in psutil.process_iter():
+        try:
+            if process.environ().get(TAG) == tag and process.status() != psutil.STATUS_ZOMBIE:
+                found.append(process)
+        except psutil.Error:  # ended meanwhile, or not ours to read
+            continue
+    return found
+
+
+def cmdline(process: psutil.Process) -> str:
+    try:
+        return " ".join(process.cmdline())
+    except psutil.Error:  # ended meanwhile
+        return ""
+
+
+def kill_when(process: subprocess.Popen, under_way: Callable[[], bool], pause: float = 0.01) -> bool:
+    """kill -9 the command as soon as ``under_way()``, asked every ``pause`` seconds (0: without a break, for a
+    moment of milliseconds); False if the command finished first (the moment was missed)."""
+    while process.poll() is None:
+        if under_way():
+            os.kill(process.pid, signal.SIGKILL)
+            process.wait()
+            return True
+        time.sleep(pause)
+    return False
+
+
+def assert_nothing_left_running(tag: str) -> None:
+    deadline = time.monotonic() + GONE_WITHIN_S
+    while (left := processes_of(tag)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    descriptions = [cmdline(p)[:160] for p in left]
+    for process in left:  # ours (they carry the tag): do not leave them running when the test fails
+        with contextlib.suppress(psutil.Error):
+            process.kill()
+    assert descriptions == [], "processes outlived the killed run"
+
+
+#: picamcal's temporary names (docs/outputs.md), and zarr's chunk temporaries.
+TEMPORARY = re.compile(r"\.picamcal-[0-9a-f]{8}-[0-9]+-[0-9a-f]{8}\.tmp|\.partial$")
+
+
+def temporaries(folder: Path) -> list[str]:
+    """The temporaries anywhere under ``folder``."""
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if TEMPORARY.search(p.name))
+
+
+def names(folder: Path, pattern: str) -> Callable[[], list[str]]:
+    def found() -> list[str]:
+        try:
+            return [entry.name for entry in os.scandir(folder) if Path(entry.name).match(pattern)]
+        except FileNotFoundError:
+            return []
+
+    return found
+
+
+def ordinary_folder_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o777 & ~umask
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> dict[str, Path]:
+    """References, their calibration, FRAMES copies of the target, and their outputs from a serial run."""
+    root = tmp_path_factory.mktemp("kill")
+    refs = simulate_run(root / "sim", "imx219", size=SIZE, seed=5)
+    cal = calibrate(**{role: read_raw(refs[role]) for role in ("white", "red", "green", "blue", "black")})
+    cal.save(root / "cal.npz")
+    frames = root / "frames"
+    frames.mkdir()
+    for i in range(FRAMES):
+        shutil.copyfile(refs["target"], frames / f"f{i:02d}.dng")
+    result = run_batch(root / "cal.npz", [frames], root / "reference", workers=0)
+    assert len(result.done) == FRAMES
+    return {"sim": root / "sim", "cal": root / "cal.npz", "frames": frames, "reference": root / "reference"}
+
+
+def test_killed_calibrate_leaves_no_file_and_the_rerun_cleans_up(data, tmp_path):
+    out = tmp_path / "cal.npz"
+    args = ("calibrate", str(data["sim"]), "--out", str(out), "--bin-size", "2")  # a 17 MB file: saving takes a while
+    for attempt in range(5):  # the save lasts some tens of milliseconds: try again if the kill missed it
+        process, tag = start(*args)
+        killed = kill_when(process, names(tmp_path, ".cal.picamcal-*.tmp.npz"), pause=0)
+        assert_nothing_left_running(tag)
+        if killed and not out.exists():
+            print(f"killed while saving at attempt {attempt + 1}")
+            break
+        load_calibration(out)  # saved before the kill landed: then it is complete
+        out.unlink()
+    else:
+        pytest.fail("the kill never landed while the calibration was being saved")
+    assert len(temporaries(tmp_path)) == 1  # what kill -9 leaves: the temporary being written
+
+    again = subprocess.run(command(*args, "--overwrite"), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert load_calibration(out).white.shape == (SIZE[1] // 2, SIZE[0] // 2, 3)
+    assert temporaries(tmp_path) == []
+
+
+def test_killed_correct_with_workers_leaves_no_process_and_no_partial_file(data, tmp_path):
+    out = tmp_path / "out"
+    args = ("correct", str(data["cal"]), str(data["frames"]), "--out", str(out), "--workers", "2")
+    process, tag = start(*args)
+    seen: list[psutil.Process] = []
+
+    def under_way() -> bool:  # a worker is writing, and the pool (forkserver and workers) is there to outlive
+        if not names(out, ".f*.picamcal-*.tmp.tiff")():
+            return False
+        seen[:] = processes_of(tag)
+        return sum("forkserver" in cmdline(p) for p in seen) >= 3
+
+    assert kill_when(process, under_way), "the batch finished before the kill"
+    assert any("resource_tracker" in cmdline(p) for p in seen)
+    assert_nothing_left_running(tag)
+    finished = sorted(p.name for p in out.glob("*.tiff") if not p.name.startswith("."))
+    assert len(finished) < FRAMES
+    for name in finished:  # complete or absent, never half-written
+        assert (out / name).read_bytes() == (data["reference"] / name).read_bytes()
+
+    again = subprocess.run(command(*args), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"skipped {len(finished)} (done already)" in again.stderr
+    assert temporaries(out) == []
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == {
+        p.name: p.read_bytes() for p in data["reference"].iterdir()
+    }
+
+
+def test_killed_report_leaves_no_folder_and_the_rerun_cleans_up(data, tmp_path):
+    out = tmp_path / "report"
+    args = ("report", str(data["cal"]), "--out", str(out))
+    process, tag = start(*args)
+    building = names(tmp_path, ".report.picamcal-*.tmp")
+
+    def under_way() -> bool:  # the report's folder exists and the first figures are in it
+        return bool(building()) and len(list((tmp_path / building()[0]).glob("*.png"))) >= 2
+
+    assert kill_when(process, under_way), "the report was finished before the kill"
+    assert_nothing_left_running(tag)
+    assert not out.exists()  # the report is renamed into place only when complete
+    assert len(temporaries(tmp_path)) >= 1
+
+    again = subprocess.run(command(*args), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert (out / "index.html").is_file() and (out / ".picamcal-report").is_file()
+    assert stat.S_IMODE(out.stat().st_mode) == ordinary_folder_mode()  # not a temporary folder's private 0700
+    assert temporaries(tmp_path) == []
+
+
+def test_killed_zarr_batch_leaves_no_process_and_resumes(data, tmp_path):
+    zarr = pytest.importorskip("zarr")
+    stack = tmp_path / "frames.zarr"
+    args = ("correct", str(data["cal"]), str(data["frames"]), "--zarr", str(stack), "--workers", "2")
+    process, tag = start(*args)
+    chunks = names(stack / "0" / "c", "*")
+
+    def under_way() -> bool:  # frames are being written: their chunk folders appear
+        return len(chunks()) >= 2
+
+    assert kill_when(process, under_way), "the batch finished before the kill"
+    assert_nothing_left_running(tag)
+    assert names(tmp_path, ".frames.zarr.picamcal-*.tmp.writing")() != []  # the killed run's mark, for the next run
+    reference = [
+        np.moveaxis(tifffile.imread(data["reference"] / f"f{i:02d}.tiff"), -1, 0).astype(np.float32)
+        for i in range(FRAMES)
+    ]
+    done = zarr.open_group(stack, mode="r").attrs["picamcal"]["done"]
+    array = zarr.open_array(stack / "0", mode="r")
+    assert len(done) < FRAMES
+    for i in done:  # a frame recorded as done is complete
+        np.testing.assert_array_equal(array[i], reference[i])
+
+    again = subprocess.run(command(*args), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert zarr.open_group(stack, mode="r").attrs["picamcal"]["done"] == list(range(FRAMES))
+    array = zarr.open_array(stack / "0", mode="r")
+    for i in range(FRAMES):  # exact: the same calibration and raw data, the same float32 arithmetic
+        np.testing.assert_array_equal(array[i], reference[i])
+    assert temporaries(tmp_path) == []
