@@ -81,6 +81,14 @@ class FakeDevice:
                     return
                 os.write(self.master, (message + "\r\n").encode("ascii"))
 
+    def read_lines(self, count: int, wait: float = 10.0) -> list[str]:
+        """The lines read, once there are ``count`` (or ``wait`` seconds have passed): the device's thread reads
+        a line the host has already written only after it has finished answering the one before."""
+        deadline = time.monotonic() + wait
+        while len(self.lines) < count and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return self.lines
+
     def unplug(self) -> None:
         """The USB cable is pulled: the device end of the pty disappears."""
         self._stop.set()
@@ -204,7 +212,7 @@ def test_answer_beyond_the_timeout_is_retried_and_then_succeeds(make_device):
     device = make_device(late_once)
     light = SerialIlluminator(device.port, timeout=0.25, retries=2, reset_wait=0.0)
     light.set_rgb(5, 6, 7)
-    assert device.lines == ["id?", "set_rgb 5 6 7", "set_rgb 5 6 7"]
+    assert device.read_lines(3) == ["id?", "set_rgb 5 6 7", "set_rgb 5 6 7"]
     time.sleep(0.2)  # the resend's "done." has arrived too: one answer more than the host read
     # That spare "done." must not pass for the answer to the next command, which is an error.
     with pytest.raises(IlluminatorError, match="LED supply"):

@@ -900,7 +900,7 @@ def analyse_cmd(
 
     refuse_inputs_as_output(out, [*images, calibration, layout])
     cal = load_calibration(calibration) if calibration is not None else None
-    target_layout = _read_json(layout) if layout is not None else None
+    target_layout = _read_layout(layout) if layout is not None else None
     outputs = [out / f"{image.stem}_analysis.json" for image in images]
     for path in outputs:
         if path.exists() and not overwrite:
@@ -970,7 +970,7 @@ def report_cmd(
     from .report import write_report
 
     cal = load_calibration(calibration)
-    target_layout = _read_json(layout) if layout is not None else None
+    target_layout = _read_layout(layout) if layout is not None else None
     with console.status("writing the report") as status:
         index = write_report(
             cal,
@@ -984,7 +984,7 @@ def report_cmd(
     console.print(f"wrote {index}")
 
 
-def _read_json(path: Path) -> dict:
+def _read_layout(path: Path) -> dict:
     from .analysis.wheels import read_layout
 
     return read_layout(path)
