@@ -41,6 +41,19 @@ def linear_refs(request) -> dict[str, RawImage]:
     }
 
 
+def simulated_calibration(folder, size: tuple[int, int], seed: int):
+    """A simulated IMX219 run in ``folder``/sim and its full calibration, saved as ``folder``/cal.npz: (paths, cal)."""
+    from picamcal.calibrate import calibrate
+    from picamcal.raw import read_raw
+    from picamcal.simulate import simulate_run
+
+    refs = simulate_run(folder / "sim", "imx219", size=size, seed=seed)
+    calibrate(**{role: read_raw(refs[role]) for role in ("white", "red", "green", "blue", "black")}).save(
+        folder / "cal.npz"
+    )
+    return refs, folder / "cal.npz"
+
+
 # Started from a small launcher: Linux starts a child's ru_maxrss at the peak of the process it was forked from
 # (exec keeps the old memory's high-water mark), so a child forked from pytest itself would report at least
 # pytest's own size. The launcher is a bare Python of about 10 MB that reports its own child's peak alone.

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 import tifffile
 
-from picamcal import OutputError, PicamcalError, calibrate, read_raw
+from conftest import simulated_calibration
+from picamcal import OutputError, PicamcalError
 from picamcal.batch import expand_inputs, run_batch
 from picamcal.raw import write_dng
-from picamcal.simulate import make_camera, simulate_run, simulate_target
+from picamcal.simulate import make_camera, simulate_target
 
 SIZE = (320, 240)
 
@@ -57,9 +58,7 @@ def write_frames(folder: Path, count: int, first_seed: int = 0) -> list[Path]:
 def data(tmp_path_factory) -> dict[str, Path]:
     """A calibration, ten frames, and their outputs from a plain serial run (the reference for every other run)."""
     root = tmp_path_factory.mktemp("batch")
-    refs = simulate_run(root / "refs", "imx219", size=SIZE, seed=3)
-    cal = calibrate(**{role: read_raw(refs[role]) for role in ("white", "red", "green", "blue", "black")})
-    cal.save(root / "cal.npz")
+    simulated_calibration(root, SIZE, seed=3)
     write_frames(root / "frames", 10)
     result = run_batch(root / "cal.npz", [root / "frames"], root / "reference", workers=0)
     assert len(result.done) == 10 and not result.failed

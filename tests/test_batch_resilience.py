@@ -19,11 +19,12 @@ import numpy as np
 import pytest
 import tifffile
 
-from picamcal import calibrate, load_calibration, read_raw
+from conftest import simulated_calibration
+from picamcal import load_calibration
 from picamcal._atomic import make_temporary, remove_stale_temporaries, temporary_name
 from picamcal.batch import run_batch
 from picamcal.raw import write_dng
-from picamcal.simulate import make_camera, simulate_run, simulate_target
+from picamcal.simulate import make_camera, simulate_target
 
 SIZE = (320, 240)
 #: The longest stem whose outputs (``.tiff``, ``.npz``) still fit a 255-byte file name with a margin.
@@ -52,9 +53,7 @@ def data(tmp_path_factory) -> dict[str, Path]:
     """A calibration, three good frames with their outputs from a serial run, a frame of another size and a
     truncated one."""
     root = tmp_path_factory.mktemp("resilience")
-    refs = simulate_run(root / "refs", "imx219", size=SIZE, seed=3)
-    cal = calibrate(**{role: read_raw(refs[role]) for role in ("white", "red", "green", "blue", "black")})
-    cal.save(root / "cal.npz")
+    simulated_calibration(root, SIZE, seed=3)
     good = root / "good"
     good.mkdir()
     camera = make_camera("imx219", size=SIZE)

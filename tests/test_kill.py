@@ -26,9 +26,9 @@ import psutil
 import pytest
 import tifffile
 
-from picamcal import calibrate, load_calibration, read_raw
+from conftest import simulated_calibration
+from picamcal import load_calibration
 from picamcal.batch import run_batch
-from picamcal.simulate import simulate_run
 
 SIZE = (640, 480)  # big enough that the work lasts while the test looks for its temporaries
 FRAMES = 10
@@ -124,9 +124,7 @@ def ordinary_folder_mode() -> int:
 def data(tmp_path_factory) -> dict[str, Path]:
     """References, their calibration, FRAMES copies of the target, and their outputs from a serial run."""
     root = tmp_path_factory.mktemp("kill")
-    refs = simulate_run(root / "sim", "imx219", size=SIZE, seed=5)
-    cal = calibrate(**{role: read_raw(refs[role]) for role in ("white", "red", "green", "blue", "black")})
-    cal.save(root / "cal.npz")
+    refs, _ = simulated_calibration(root, SIZE, seed=5)
     frames = root / "frames"
     frames.mkdir()
     for i in range(FRAMES):
