@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 
 import picamcal
+from picamcal.analysis.metrics import flatness
 from picamcal.export.isp import alsc_section, apply_tuning
 from picamcal.export.tuning import STOCK_TUNING_DIR, export_tuning, load_tuning
-from picamcal.metrics import flatness
 from picamcal.sensors import LSC_GRIDS
 from picamcal.simulate import make_camera, render, simulate_references
 

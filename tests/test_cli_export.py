@@ -112,7 +112,7 @@ def test_correct_processed_with_the_tuning_it_was_taken_with(run_dir, tmp_path):
         str(tmp_path / "out"),
     )
     assert result.returncode == 0, result.stderr
-    from picamcal.metrics import wheel_figures
+    from picamcal.analysis.metrics import wheel_figures
 
     layout = json.loads((run_dir / "sim" / "layout.json").read_text())
     assert wheel_figures(tifffile.imread(tmp_path / "out" / "isp.tiff"), layout)["max_delta_e"] < 1.0

@@ -96,7 +96,7 @@ def test_correct_processed_images(brcm_run, tmp_path):
     cal = tmp_path / "cal.npz"
     assert run("calibrate", str(brcm_run), "--out", str(cal)).returncode == 0
     from picamcal import correct, load_calibration
-    from picamcal.metrics import encode_srgb
+    from picamcal.analysis.metrics import encode_srgb
 
     flat = correct(read_raw(brcm_run / "target.jpg"), load_calibration(cal), "flat")
     Image.fromarray(encode_srgb(flat)).save(tmp_path / "isp.png")

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from picamcal import calibrate, correct
+from picamcal.analysis.metrics import flatness, wheel_figures
 from picamcal.bayer import sites_to_channels
 from picamcal.calibrate import centre_region
-from picamcal.metrics import flatness, wheel_figures
 from picamcal.simulate import ground_truth, make_camera, render, simulate_references, simulate_target
 
 SIZE = (640, 480)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from picamcal import PicamcalWarning, calibrate
+from picamcal.analysis.metrics import wheel_figures
 from picamcal.bayer import bin_sites
 from picamcal.correct import correct, correct_processed
 from picamcal.export.isp import (
@@ -25,7 +26,6 @@ from picamcal.export.isp import (
 )
 from picamcal.export.legacy import apply_legacy_table, legacy_table, plane_sites, table_shape
 from picamcal.export.tuning import TuningError, alsc_tables, check_tuning, export_tuning, load_tuning
-from picamcal.metrics import wheel_figures
 from picamcal.raw import RawImage
 from picamcal.sensors import LSC_GRIDS
 from picamcal.simulate import make_camera, simulate_references, simulate_target

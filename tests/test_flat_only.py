@@ -22,11 +22,11 @@ from picamcal import (
     write_dng,
     write_npz,
 )
+from picamcal.analysis.metrics import flatness
 from picamcal.bayer import bin_sites
 from picamcal.calibration import FLAT_ARRAYS
 from picamcal.export.legacy import apply_legacy_table, legacy_table
 from picamcal.export.tuning import export_tuning, load_tuning
-from picamcal.metrics import flatness
 from picamcal.raw.model import site_channels
 from picamcal.report import write_report
 from picamcal.simulate import make_camera, render, simulate_references, simulate_target

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from picamcal import CalibrationInputError, calibrate, calibrate_in_situ, correct
-from picamcal.metrics import flatness, wheel_figures
+from picamcal.analysis.metrics import flatness, wheel_figures
 from picamcal.raw import RawImage
 from picamcal.simulate import make_camera, render, simulate_references, simulate_target
 

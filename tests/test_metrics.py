@@ -1,4 +1,4 @@
-"""Tests of picamcal.metrics: colour differences, wheel sampling and figures, flatness and previews."""
+"""Tests of picamcal.analysis.metrics: colour differences, wheel sampling and figures, flatness and previews."""
 
 from __future__ import annotations
 
@@ -11,9 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from PIL import Image
 
-from picamcal.bayer import bin_centres
-from picamcal.errors import PicamcalError
-from picamcal.metrics import (
+from picamcal.analysis.metrics import (
     delta_e2000,
     delta_e2000_lab,
     encode_srgb,
@@ -24,6 +22,8 @@ from picamcal.metrics import (
     segment_colours,
     wheel_figures,
 )
+from picamcal.bayer import bin_centres
+from picamcal.errors import PicamcalError
 
 SEGMENTS = [
     ("red", [1.0, 0.0, 0.0]),

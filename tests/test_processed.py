@@ -11,8 +11,8 @@ import tifffile
 from PIL import Image
 
 from picamcal import PicamcalError, RawFormatError, calibrate, correct
+from picamcal.analysis.metrics import encode_srgb, wheel_figures
 from picamcal.correct import correct_processed
-from picamcal.metrics import encode_srgb, wheel_figures
 from picamcal.raw.processed import linearise, read_processed, tuning_gamma_curve
 from picamcal.simulate import make_camera, simulate_references, simulate_target
 

@@ -11,9 +11,9 @@ from PIL import Image
 from scipy import ndimage
 
 from picamcal import calibrate, correct
+from picamcal.analysis.metrics import wheel_figures
 from picamcal.analysis.wheels import analyse, find_wheels, polar_plot, wheel_crops
 from picamcal.errors import PicamcalError
-from picamcal.metrics import wheel_figures
 from picamcal.raw.model import site_channels
 from picamcal.simulate import make_camera, simulate_references, simulate_target, wheel_scene
 from picamcal.target import render_target, target_layout

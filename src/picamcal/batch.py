@@ -58,7 +58,6 @@ from ._atomic import (
     refuse_inputs_as_output,
     remove_stale_temporaries,
 )
-from ._files import sha256_file
 from .calibration import MODES, Calibration, load_calibration
 from .correct import correct, correct_processed
 from .errors import OutputError, PicamcalError, PicamcalWarning
@@ -76,6 +75,7 @@ from .output import (
 from .raw import PATTERNS, read_raw
 from .raw.npz import is_raw_npz
 from .raw.processed import ProcessedImage, linearise, read_processed
+from .records import sha256_file
 
 #: Suffixes of the files taken from a folder of raw images (DNG, legacy JPEG+raw, picamera2 .npy, picamcal .npz).
 RAW_SUFFIXES = (".dng", ".jpg", ".jpeg", ".npy", ".npz")

@@ -41,6 +41,62 @@ def bin_centres(n_pixels: int, bin_size: int, site: int | None = None) -> np.nda
     return (first + last) / 2.0
 
 
+def centre_region(nby: int, nbx: int) -> tuple[int, int, int, int]:
+    """Bin index range (y0, y1, x0, x1) of the central ninth of the frame (middle third in each axis).
+
+    The reference region of the paper's colour unmixing (``M_centre``, the colours the ``centre`` mode restores)
+    and of every "centre" figure. The paper's 2019 code took rows 4/9 to the bottom edge; this is the central ninth
+    it meant. At least one bin in each axis, however small the grid.
+
+    Examples
+    --------
+    >>> centre_region(154, 205)
+    (51, 102, 68, 136)
+    >>> centre_region(2, 2)
+    (0, 1, 0, 1)
+    """
+    return nby // 3, max(2 * nby // 3, nby // 3 + 1), nbx // 3, max(2 * nbx // 3, nbx // 3 + 1)
+
+
+def block_mean(values: np.ndarray, block: int, *, partial: bool = True, dtype: type = np.float64) -> np.ndarray:
+    """Mean over square blocks of ``block`` x ``block`` pixels from the top-left, per channel.
+
+    The one block average of picamcal: bins of an RGB image, reduced images for searches, noise maps.
+
+    Parameters
+    ----------
+    values : ndarray, shape (H, W) or (H, W, ...)
+    block : int
+        Block edge length in pixels, >= 1.
+    partial : bool
+        Keep the partial blocks at the bottom and right edges (averaging the pixels they have), or drop them.
+    dtype : numpy float type
+        Accumulation and result type (float32 halves the memory of a reduction of a large image).
+
+    Returns
+    -------
+    ndarray, shape (ceil(H / block), ceil(W / block), ...) or, without ``partial``, (H // block, W // block, ...)
+
+    Examples
+    --------
+    >>> v = np.arange(15, dtype=float).reshape(3, 5)
+    >>> block_mean(v, 2).tolist()
+    [[3.0, 5.0, 6.5], [10.5, 12.5, 14.0]]
+    >>> block_mean(v, 2, partial=False).tolist()
+    [[3.0, 5.0]]
+    """
+    if int(block) != block or block < 1:
+        raise ValueError(f"block must be a whole number of pixels >= 1, got {block}")
+    block = int(block)
+    if not partial:
+        values = values[: values.shape[0] // block * block, : values.shape[1] // block * block]
+    rows = np.arange(0, values.shape[0], block)
+    cols = np.arange(0, values.shape[1], block)
+    sums = np.add.reduceat(np.add.reduceat(values, rows, axis=0, dtype=dtype), cols, axis=1, dtype=dtype)
+    counts = np.outer(np.diff(np.append(rows, values.shape[0])), np.diff(np.append(cols, values.shape[1])))
+    return sums / counts.reshape(counts.shape + (1,) * (values.ndim - 2)).astype(dtype)
+
+
 def bin_sites(mosaic: np.ndarray, bin_size: int) -> np.ndarray:
     """Mean of each 2x2 Bayer site over square bins of ``bin_size`` sensor pixels.
 

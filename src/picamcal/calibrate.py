@@ -26,13 +26,13 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from ._files import sha256_file
 from ._version import __version__
 from .bayer import bin_sites, sites_to_channels
 from .calibration import Calibration
 from .errors import CalibrationFileError, CalibrationInputError, PicamcalWarning
 from .raw import RawImage, read_raw
 from .raw.model import require_black_level
+from .records import sha256_file
 
 REFERENCE_ROLES = ("white", "red", "green", "blue", "black")
 #: Fraction of clipped white pixels above which the white is refused.

@@ -764,7 +764,7 @@ def inspect_cmd(
     import json
     import warnings
 
-    from .inspect import files_of, survey
+    from .describe import files_of, survey
 
     read = _reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
     records = []

@@ -14,11 +14,11 @@ from typing import Any
 import numpy as np
 
 from ._atomic import atomic_path
+from .analysis.metrics import flatness, save_preview, wheel_figures
 from .calibrate import calibrate
 from .calibration import MODES, Calibration
 from .correct import correct
 from .errors import OutputError
-from .metrics import flatness, save_preview, wheel_figures
 from .raw import RawImage, read_raw
 from .report import write_report
 from .simulate import run_camera, simulate_references, simulate_run

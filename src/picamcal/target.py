@@ -14,7 +14,7 @@ smaller solid disc beside the top-left ring, towards the top-right one, which fi
 orientation and tells a mirrored image from a true one.
 
 Coordinates are in pixels of the rendering, with pixel centres at integer coordinates (pixel ``(i, j)``
-covers ``x`` from ``j - 0.5`` to ``j + 0.5``), the convention of :mod:`picamcal.metrics`; angles are
+covers ``x`` from ``j - 0.5`` to ``j + 0.5``), the convention of :mod:`picamcal.analysis.metrics`; angles are
 ``atan2(-(y - cy), x - cx)`` in degrees, counter-clockwise from +x as seen on screen.
 """
 
@@ -31,10 +31,10 @@ import numpy as np
 from PIL import Image, PngImagePlugin
 
 from ._atomic import atomic_path
+from .analysis.metrics import encode_srgb
 from .colour_wheel import SEGMENTS
 from .errors import PicamcalError
 from .limits import MAX_PIXELS_VARIABLE, max_pixels
-from .metrics import encode_srgb
 
 __all__ = ["is_target_file", "render_target", "save_target", "target_layout"]
 
@@ -152,7 +152,7 @@ def render_target(layout: Mapping[str, Any], supersample: int = 4) -> np.ndarray
     """Render a target layout as an 8-bit sRGB image: segments in their colours, fiducials black, on white.
 
     Each pixel near an edge averages ``supersample`` x ``supersample`` samples in linear light before
-    the sRGB encoding (:func:`picamcal.metrics.encode_srgb`), so a pixel half covered by red shows half
+    the sRGB encoding (:func:`picamcal.analysis.metrics.encode_srgb`), so a pixel half covered by red shows half
     the red light, as a screen should; pixels away from every edge take their colour at the centre.
 
     Parameters

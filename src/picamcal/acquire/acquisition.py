@@ -44,7 +44,6 @@ from typing import Any
 import numpy as np
 
 from .._atomic import atomic_path
-from .._files import json_default, sha256_file
 from .._json import Fields, read_json
 from .._version import __version__
 from ..bayer import sites_to_channels
@@ -52,6 +51,7 @@ from ..calibrate import MAX_CLIPPED_FRACTION
 from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..raw.dng import write_dng
 from ..raw.model import RawImage
+from ..records import json_default, sha256_file
 from ..references import role_of
 from ..simulate import wheel_layout, wheel_scene
 from .base import Illuminator

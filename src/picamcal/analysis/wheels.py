@@ -5,7 +5,7 @@ centre of the frame with the centre one (Figure "matrix_correction_wheels_and_po
 wheels (panels a-d) and polar plots of the hue (angle) and saturation (radius) of their six segments,
 centre wheel solid, the others dashed (panels e-h). This module finds the wheels in an image
 (:func:`find_wheels`), computes the figures of every correction mode (:func:`analyse`, on top of
-:func:`picamcal.metrics.wheel_figures`) and draws both panels (:func:`wheel_crops`, :func:`polar_plot`).
+:func:`picamcal.analysis.metrics.wheel_figures`) and draws both panels (:func:`wheel_crops`, :func:`polar_plot`).
 
 Finding the wheels must work on the uncorrected image, whose corners are darker and less saturated than
 its centre, and whose white need not even be balanced. Everything here therefore works on the image
@@ -18,7 +18,7 @@ out, and a black fiducial mark has ``max(n)`` near 0.
 
 Coordinates are pixels of the image with pixel centres at integer coordinates; angles are
 ``atan2(-(y - cy), x - cx)`` in degrees, counter-clockwise from +x as seen on screen, as in
-:mod:`picamcal.metrics` and :mod:`picamcal.target`.
+:mod:`picamcal.analysis.metrics` and :mod:`picamcal.target`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from .._atomic import atomic_path
 from .._json import Fields, read_json
 from ..colour_wheel import SEGMENTS
 from ..errors import PicamcalError
-from ..metrics import encode_srgb, hue_saturation, segment_colours, wheel_figures
+from .metrics import encode_srgb, hue_saturation, segment_colours, wheel_figures
 
 __all__ = ["analyse", "find_wheels", "polar_plot", "read_layout", "wheel_crops"]
 
@@ -184,7 +184,7 @@ def find_wheels(rgb: ArrayLike, *, layout: Mapping[str, Any] | None = None) -> d
     Returns
     -------
     dict
-        JSON-serialisable layout in the image's pixels (usable by :func:`picamcal.metrics.wheel_figures`):
+        JSON-serialisable layout in the image's pixels (usable by :func:`picamcal.analysis.metrics.wheel_figures`):
         ``"width"``, ``"height"``, ``"units"`` (``"pixels"``), ``"segments"`` (``name``, ``colour``,
         ``start_deg``, ``end_deg``, turned by the wheels' mean rotation), ``"wheels"`` (``name``,
         ``x``, ``y``, ``radius``, ``rotation_deg``, ``mirrored`` and the wheel's own ``segments``), and
@@ -224,11 +224,11 @@ def find_wheels(rgb: ArrayLike, *, layout: Mapping[str, Any] | None = None) -> d
 def analyse(images_by_mode: Mapping[str, ArrayLike], layout: Mapping[str, Any]) -> dict[str, Any]:
     """Compare the wheels of each correction mode's image with its centre wheel, for tables and plots.
 
-    For each mode, the figures of :func:`picamcal.metrics.wheel_figures` (CIEDE2000 of every segment
+    For each mode, the figures of :func:`picamcal.analysis.metrics.wheel_figures` (CIEDE2000 of every segment
     against the same segment of the centre wheel, hue shift, saturation ratio) and the colours behind
     them: each wheel's segment colours (linear RGB, the medians of
-    :func:`picamcal.metrics.segment_colours`) and their CIE hue angle and saturation
-    (:func:`picamcal.metrics.hue_saturation`). Segments are sampled 8 degrees inside their edges, plus
+    :func:`picamcal.analysis.metrics.segment_colours`) and their CIE hue angle and saturation
+    (:func:`picamcal.analysis.metrics.hue_saturation`). Segments are sampled 8 degrees inside their edges, plus
     however far the wheels' own segment angles (from :func:`find_wheels`) stray from the layout's
     common ones (at most 24 degrees in all).
 
@@ -247,7 +247,7 @@ def analyse(images_by_mode: Mapping[str, ArrayLike], layout: Mapping[str, Any]) 
         JSON-serialisable (NaN where a ratio is undefined), keyed by mode; each value holds ``"mode"``,
         ``"segments"`` (``name``, ``colour``), ``"wheels"`` (for every wheel including the centre:
         ``x``, ``y``, ``radius``, ``colours`` (6 x 3), ``hue_deg``, ``saturation``), ``"figures"``
-        (:func:`~picamcal.metrics.wheel_figures`' per-wheel dict) and ``"summary"`` (``max_delta_e`` and
+        (:func:`~picamcal.analysis.metrics.wheel_figures`' per-wheel dict) and ``"summary"`` (``max_delta_e`` and
         ``mean_delta_e`` over the segments of the wheels other than the centre, ``mean_saturation_ratio``,
         ``mean_abs_hue_shift_deg``).
 
@@ -255,7 +255,7 @@ def analyse(images_by_mode: Mapping[str, ArrayLike], layout: Mapping[str, Any]) 
     ------
     PicamcalError
         If there are no images, an image does not fit the layout, or as
-        :func:`~picamcal.metrics.wheel_figures`.
+        :func:`~picamcal.analysis.metrics.wheel_figures`.
 
     Examples
     --------

@@ -15,11 +15,11 @@ from pathlib import Path
 
 from ..errors import PicamcalWarning, RawFormatError
 from ..sensors import black_level_at, find_sensor_name, get_sensor
-from ._files import file_head
 from .brcm import is_jpeg, read_brcm, write_brcm
 from .dng import is_dng, read_dng, write_dng
 from .headless import headless_hint, read_headless
 from .model import PATTERNS, RawImage, given_black_level, site_channels
+from .npy import file_head
 from .npz import read_npz, write_npz
 from .picamera2 import (
     from_picamera2,
@@ -31,8 +31,19 @@ from .picamera2 import (
 )
 from .verify import check_metadata
 
+#: File suffixes of the raw formats a folder is searched for (``read_raw`` tells them apart by content; a ``.raw`` or
+#: ``.bin`` headless dump needs its sensor and size given, so folders of raw images do not include them).
+RAW_SUFFIXES = (".dng", ".jpg", ".jpeg", ".npy", ".npz")
+#: Headless ``rpicam-raw`` dumps: read with the sensor, mode and size given (:func:`read_headless`).
+HEADLESS_SUFFIXES = (".raw", ".bin")
+#: Processed (ISP output) images: :func:`picamcal.raw.processed.read_processed`.
+PROCESSED_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+
 __all__ = [
+    "HEADLESS_SUFFIXES",
     "PATTERNS",
+    "PROCESSED_SUFFIXES",
+    "RAW_SUFFIXES",
     "RawImage",
     "check_metadata",
     "from_picamera2",

@@ -43,11 +43,11 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from .._atomic import atomic_path
-from .._files import json_default
 from .._json import parse_json
 from .._version import __version__
 from ..errors import OutputError, PicamcalWarning, RawFormatError, short
 from ..limits import check_size, require_regular_file
+from ..records import json_default
 from ..sensors import find_sensor_name
 from .model import PATTERNS, RawImage, require_black_level
 

@@ -34,8 +34,8 @@ import numpy as np
 from ..errors import RawFormatError
 from ..limits import check_size
 from ..sensors import SENSORS, black_level_at, find_sensor_name, get_sensor
-from ._files import file_head
 from .model import RawImage, given_black_level
+from .npy import file_head
 from .picamera2 import RawFormat, from_picamera2, max_stride, parse_raw_format, require_colour_sensor
 
 __all__ = ["default_strides", "headless_hint", "read_headless"]

@@ -19,11 +19,11 @@ from typing import IO, Any
 import numpy as np
 
 from .._atomic import atomic_path
-from .._files import json_default
 from ..errors import RawFormatError
 from ..limits import check_size, require_regular_file
-from ._files import read_array_data, read_npy_header
+from ..records import json_default
 from .model import RawImage
+from .npy import read_array_data, read_npy_header
 
 FORMAT_NAME = "picamcal-raw"
 VERSION = 1

@@ -36,8 +36,8 @@ from .._atomic import atomic_path
 from ..errors import OutputError, PicamcalWarning, RawFormatError, closest, short
 from ..limits import check_size, require_regular_file
 from ..sensors import black_level_at, find_sensor_name, get_sensor
-from ._files import read_array_data, read_npy_header
 from .model import RawImage
+from .npy import read_array_data, read_npy_header
 from .packing import pack, packed_row_bytes, unpack
 
 __all__ = [

@@ -33,7 +33,7 @@ import numpy as np
 from .._json import Fields, read_json
 from ..errors import PicamcalError, RawFormatError, closest
 from ..limits import check_size
-from ._files import file_head
+from .npy import file_head
 
 
 @dataclass

@@ -18,11 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from .._atomic import make_temporary, refuse_inputs_as_output, remove_stale_temporaries, temporary_name
-from .._files import json_default
 from .._version import __version__
 from ..calibration import Calibration
 from ..errors import OutputError
 from ..raw import RawImage, read_raw
+from ..records import json_default
 
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; line-height: 1.45; }
@@ -141,9 +141,9 @@ def _figures(cal: Calibration, folder: Path, step: Callable[[str], None]) -> lis
 def _test_image_section(
     cal: Calibration, raw: RawImage, folder: Path, index: int, layout: dict | None
 ) -> tuple[str, dict[str, Any]]:
+    from ..analysis.metrics import save_preview
     from ..analysis.wheels import analyse, find_wheels, polar_plot, wheel_crops
     from ..correct import correct
-    from ..metrics import save_preview
 
     stem = f"test{index}"
     images = {mode: correct(raw, cal, mode) for mode in cal.modes}

@@ -1,4 +1,4 @@
-"""Opening a file the user named, with the one-line errors every reader gives."""
+"""Reading the first bytes of a file and `.npy` arrays, with the one-line errors every reader gives."""
 
 from __future__ import annotations
 

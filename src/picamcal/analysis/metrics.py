@@ -26,8 +26,8 @@ from colour.utilities import domain_range_scale
 from numpy.typing import ArrayLike
 from PIL import Image
 
-from ._atomic import atomic_path
-from .errors import PicamcalError
+from .._atomic import atomic_path
+from ..errors import PicamcalError
 
 __all__ = [
     "delta_e2000",
