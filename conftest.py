@@ -15,6 +15,16 @@ from _pytest.doctest import DoctestItem
 
 import picamcal
 
+#: Examples that run a whole workflow and cannot be fast: marked ``slow``, so the fast loop (``-m "not slow"``,
+#: CONTRIBUTING.md) leaves them out; the full run still runs them. Every other example takes well under a second.
+SLOW_EXAMPLES = {"picamcal.demo.run_demo", "picamcal.report.html.write_report"}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if isinstance(item, DoctestItem) and item.name in SLOW_EXAMPLES:
+            item.add_marker(pytest.mark.slow)
+
 
 @pytest.fixture(autouse=True)
 def _doctest_folder(request: pytest.FixtureRequest, doctest_namespace: dict, tmp_path, monkeypatch) -> None:

@@ -39,6 +39,8 @@ from PIL import Image
 #: seconds, so this is a guard against waiting for ever (a FIFO read), not a measure of speed.
 TIMEOUT_S = 120
 CLI = [sys.executable, "-c", "from picamcal.cli import main; main()"]
+# Over 200 commands of a second or two each, and the small run they share: the fast loop leaves the corpus out.
+pytestmark = pytest.mark.slow
 
 
 # ------------------------------------------------------------------------------------------------- the cases

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import errno
 import json
+import logging
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +19,10 @@ import pytest
 import tifffile
 
 from conftest import simulated_calibration
-from picamcal import OutputError, PicamcalError
-from picamcal.batch import expand_inputs, run_batch
+from picamcal import OutputError, PicamcalError, PicamcalWarning
+from picamcal.batch import BatchOptionError, BatchOptions, expand_inputs, run_batch
+from picamcal.cli import main
+from picamcal.modes import Mode
 from picamcal.raw import write_dng
 from picamcal.simulate import make_camera, simulate_target
 
@@ -60,7 +64,7 @@ def data(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("batch")
     simulated_calibration(root, SIZE, seed=3)
     write_frames(root / "frames", 10)
-    result = run_batch(root / "cal.npz", [root / "frames"], root / "reference", workers=0)
+    result = run_batch(root / "cal.npz", [root / "frames"], BatchOptions(out_dir=root / "reference", workers=0))
     assert len(result.done) == 10 and not result.failed
     return {"cal": root / "cal.npz", "frames": root / "frames", "reference": root / "reference"}
 
@@ -92,18 +96,130 @@ def test_expand_inputs_takes_files_folders_and_patterns_in_order_without_duplica
         expand_inputs(["run/sub"], suffixes=(".png",))
 
 
+# ---------------------------------------------------------------------------------------------- options
+#: Options that do not go together: (BatchOptions keywords, the field at fault, the library's message).
+OPTION_MISTAKES = [
+    ({"out_dir": "o", "white": "w.png"}, None, "white and input_encoding go with processed"),
+    ({"out_dir": "o", "input_encoding": "srgb"}, None, "white and input_encoding go with processed"),
+    (
+        {"out_dir": "o", "tuning": "t.json"},
+        "tuning",
+        "tuning: without processed it gives the colour matrix of output_format srgb-png, srgb-png16, srgb-jpeg",
+    ),
+    ({"out_dir": "o", "processed": True, "binned": True}, None, "binned is for raw images"),
+    ({}, None, "give out_dir FOLDER for image files, or zarr_path STACK.zarr for one stack"),
+    (
+        {"out_dir": "o", "zarr_path": "z.zarr"},
+        None,
+        "give out_dir FOLDER for image files, or zarr_path STACK.zarr for one stack",
+    ),
+    (
+        {"out_dir": "o", "workers": 2, "scheduler": "tcp://h:1"},
+        "workers",
+        "workers: not with scheduler (the cluster has its own)",
+    ),
+    (
+        {"out_dir": "o", "mosaic": (2, 2)},
+        "mosaic",
+        "mosaic: a mosaic is a tiling of one zarr_path stack: give zarr_path STACK.zarr",
+    ),
+    ({"zarr_path": "z.zarr", "mosaic": (0, 2)}, "mosaic", "mosaic: give at least one column and one row"),
+    ({"out_dir": "o", "workers": -1}, "workers", "workers: must be 0 or more"),
+    (
+        {"out_dir": "o", "scheduler_timeout": 0},
+        "scheduler_timeout",
+        "scheduler_timeout: must be a positive number of seconds",
+    ),
+]
+
+
+@pytest.mark.parametrize(("keywords", "option", "message"), OPTION_MISTAKES)
+def test_options_that_do_not_go_together_are_refused_when_made(keywords, option, message, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(BatchOptionError) as caught:
+        BatchOptions(**keywords)
+    assert str(caught.value) == message and caught.value.option == option
+    assert isinstance(caught.value, ValueError)  # what run_batch raised for these before it took one options value
+    assert list(tmp_path.iterdir()) == []  # nothing is made, read or written
+
+
+def test_options_are_normalised_once_and_unknown_names_refused():
+    options = BatchOptions(zarr_path="stack.zarr", mode="flat", black_level=64, mosaic=[3, 2])
+    assert options.mode is Mode.FLAT and options.place == Path("stack.zarr") and options.black_level == (64.0,)
+    assert options.mosaic == (3, 2) and options.read_options["black_level"] == (64.0,)
+    assert BatchOptions(out_dir="o", processed=True, tuning="t.json").encoding == "tuning:t.json"
+    assert BatchOptions(out_dir="o", processed=True).input_suffixes == (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+    with pytest.warns(PicamcalWarning, match="'balance' is now called 'uncorrected'"):
+        assert BatchOptions(out_dir="o", mode="balance").mode is Mode.UNCORRECTED
+    with pytest.raises(ValueError, match="unknown mode 'sharp'"):
+        BatchOptions(out_dir="o", mode="sharp")
+    with pytest.raises(TypeError, match=r"run_batch takes BatchOptions\(out_dir=..., ...\), not a str"):
+        run_batch("cal.npz", ["target.dng"], "out")  # the call before the options were one value
+    for keywords, message in (
+        ({"compression": "lz4"}, "unknown compression 'lz4' (expected one of zstd)"),
+        ({"output_format": "srgb-pgn"}, "unknown output format 'srgb-pgn'"),
+        ({"pattern": "XGGB"}, "unknown Bayer pattern 'XGGB'"),
+        ({"output_format": "srgb-png", "compression": "zstd"}, "compression zstd is for the TIFF formats"),
+    ):
+        with pytest.raises(PicamcalError, match=f"^{re.escape(message)}"):
+            BatchOptions(out_dir="o", **keywords)
+
+
+#: The same mistakes on the command line: one usage line each, the options under their command-line names, as
+#: ``picamcal correct`` said them before the checks moved into BatchOptions.
+CLI_MISTAKES = {
+    "white": (["--out", "o", "--white", "w.png"], "Invalid value: --white and --input-encoding go with --processed"),
+    "tuning": (
+        ["--out", "o", "--tuning", "t.json"],
+        "Invalid value for --tuning: without --processed it gives the colour matrix of --output-format srgb-png, "
+        "srgb-png16, srgb-jpeg",
+    ),
+    "binned": (["--out", "o", "--processed", "--binned"], "Invalid value: --binned is for raw images"),
+    "no place": ([], "Invalid value: give --out FOLDER for image files, or --zarr STACK.zarr for one stack"),
+    "two places": (
+        ["--out", "o", "--zarr", "z.zarr"],
+        "Invalid value: give --out FOLDER for image files, or --zarr STACK.zarr for one stack",
+    ),
+    "workers": (
+        ["--out", "o", "--workers", "2", "--scheduler", "tcp://h:1"],
+        "Invalid value for --workers: not with --scheduler (the cluster has its own)",
+    ),
+    "mosaic": (
+        ["--out", "o", "--mosaic", "2x2"],
+        "Invalid value for --mosaic: a mosaic is a tiling of one --zarr stack: give --zarr STACK.zarr",
+    ),
+    "mosaic 0x2": (
+        ["--zarr", "z.zarr", "--mosaic", "0x2"],
+        "Invalid value for --mosaic: give at least one column and one row",
+    ),
+}
+
+
+@pytest.mark.parametrize(("args", "line"), list(CLI_MISTAKES.values()), ids=list(CLI_MISTAKES))
+def test_the_command_line_names_its_own_options_in_the_same_mistakes(args, line, tmp_path, monkeypatch, capfd):
+    """In this process (quick: every one is refused before any work); main's global settings are put back."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)
+    monkeypatch.setattr(logging.getLogger("tifffile"), "level", logging.getLogger("tifffile").level)
+    with pytest.raises(SystemExit) as exit:
+        main(["correct", "cal.npz", "target.dng", *args])
+    assert exit.value.code == 2
+    assert capfd.readouterr().err.splitlines() == [f"picamcal: error: {line} (see picamcal correct --help)"]
+    assert list(tmp_path.iterdir()) == []
+
+
 # ---------------------------------------------------------------------------------------------- pool and dask
+@pytest.mark.slow
 def test_process_pool_and_dask_cluster_write_the_same_bytes_as_a_serial_run(data, tmp_path):
     distributed = pytest.importorskip("distributed")
-    pool = run_batch(data["cal"], [data["frames"]], tmp_path / "pool", workers=2)
+    pool = run_batch(data["cal"], [data["frames"]], BatchOptions(out_dir=tmp_path / "pool", workers=2))
     assert len(pool.done) == 10 and pool.skipped == [] and pool.failed == []
     with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cluster:
         seen = []
         dask = run_batch(
             data["cal"],
             [data["frames"]],
-            tmp_path / "dask",
-            scheduler=cluster.scheduler_address,
+            BatchOptions(out_dir=tmp_path / "dask", scheduler=cluster.scheduler_address),
             progress=lambda finished, total: seen.append((finished, total)),
         )
     assert dask.done == pool.done == sorted(data["frames"].iterdir())
@@ -118,10 +234,11 @@ def test_process_pool_and_dask_cluster_write_the_same_bytes_as_a_serial_run(data
 
 
 # ---------------------------------------------------------------------------------------------- resuming
+@pytest.mark.slow
 def test_a_killed_batch_resumes_where_it_stopped(data, tmp_path):
     frames = write_frames(tmp_path / "frames", 24, first_seed=100)
     reference = tmp_path / "reference"
-    run_batch(data["cal"], frames, reference, workers=0)
+    run_batch(data["cal"], frames, BatchOptions(out_dir=reference, workers=0))
     out = tmp_path / "out"
     # The whole process group (the command, the fork server, the worker) dies at once, as in a power cut.
     process = subprocess.Popen(
@@ -151,14 +268,19 @@ def test_a_killed_batch_resumes_where_it_stopped(data, tmp_path):
 
 def test_a_finished_batch_has_nothing_to_do(data, tmp_path):
     out = tmp_path / "out"
-    run_batch(data["cal"], [data["frames"] / "f00.dng", data["frames"] / "f01.dng"], out, workers=0)
-    finished = run_batch(data["cal"], [data["frames"] / "f00.dng", data["frames"] / "f01.dng"], out, workers=0)
+    run_batch(
+        data["cal"], [data["frames"] / "f00.dng", data["frames"] / "f01.dng"], BatchOptions(out_dir=out, workers=0)
+    )
+    finished = run_batch(
+        data["cal"], [data["frames"] / "f00.dng", data["frames"] / "f01.dng"], BatchOptions(out_dir=out, workers=0)
+    )
     assert finished.done == [] and len(finished.skipped) == 2 and finished.failed == []
-    again = run_batch(data["cal"], [data["frames"] / "f00.dng"], out, workers=0, overwrite=True)
+    again = run_batch(data["cal"], [data["frames"] / "f00.dng"], BatchOptions(out_dir=out, workers=0, overwrite=True))
     assert again.done == [data["frames"] / "f00.dng"]
 
 
 # ---------------------------------------------------------------------------------------------- bad input
+@pytest.mark.slow
 def test_a_corrupt_file_is_reported_and_the_others_finish(data, tmp_path):
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -177,6 +299,7 @@ def test_a_corrupt_file_is_reported_and_the_others_finish(data, tmp_path):
     assert snapshot(out) == reference
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_one_line_before_any_work(data, tmp_path):
     pytest.importorskip("distributed")
     out = tmp_path / "out"
@@ -204,7 +327,7 @@ def test_a_read_only_output_folder_is_refused_before_any_work(data, tmp_path):
     out = tmp_path / "out"
     out.mkdir(mode=0o555)
     with pytest.raises(OutputError, match="cannot write here: Permission denied"):
-        run_batch(data["cal"], [data["frames"]], out, workers=0)
+        run_batch(data["cal"], [data["frames"]], BatchOptions(out_dir=out, workers=0))
     assert list(out.iterdir()) == []
 
 
@@ -222,7 +345,7 @@ def test_a_read_only_or_full_disk_leaves_no_file_behind(data, tmp_path, monkeypa
     with monkeypatch.context() as m:
         m.setattr("os.open", read_only)
         with pytest.raises(OutputError, match=f"^{re.escape(str(out))}: cannot write here: Read-only file system$"):
-            run_batch(data["cal"], [data["frames"]], out, workers=0)
+            run_batch(data["cal"], [data["frames"]], BatchOptions(out_dir=out, workers=0))
 
     def no_room(fd, offset, length):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
@@ -230,7 +353,7 @@ def test_a_read_only_or_full_disk_leaves_no_file_behind(data, tmp_path, monkeypa
     with monkeypatch.context() as m:
         m.setattr("os.posix_fallocate", no_room, raising=False)
         with pytest.raises(OutputError, match=r"no room for one output \(0\.9 MB\): No space left on device"):
-            run_batch(data["cal"], [data["frames"]], out, workers=0)
+            run_batch(data["cal"], [data["frames"]], BatchOptions(out_dir=out, workers=0))
     assert list(out.iterdir()) == []
 
     written = []
@@ -245,11 +368,12 @@ def test_a_read_only_or_full_disk_leaves_no_file_behind(data, tmp_path, monkeypa
 
     monkeypatch.setattr("tifffile.imwrite", fills_up)
     with pytest.raises(OutputError, match=r"cannot write: No space left on device; stopped after 2 of 10 files"):
-        run_batch(data["cal"], [data["frames"]], out, workers=0)
+        run_batch(data["cal"], [data["frames"]], BatchOptions(out_dir=out, workers=0))
     assert sorted(p.name for p in out.iterdir()) == ["f00.tiff", "f01.tiff"]  # no half-written file, no temporary
 
 
 # ---------------------------------------------------------------------------------------------- outputs
+@pytest.mark.slow
 def test_zstd_compression_is_lossless(data, tmp_path):
     pytest.importorskip("imagecodecs")
     out = tmp_path / "out"
@@ -265,6 +389,7 @@ def test_zstd_compression_is_lossless(data, tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_zarr_stack_holds_the_frames_with_ome_metadata_and_resumes(data, tmp_path):
     zarr = pytest.importorskip("zarr")
     stack = tmp_path / "frames.zarr"
@@ -292,7 +417,7 @@ def test_zarr_stack_holds_the_frames_with_ome_metadata_and_resumes(data, tmp_pat
     writable.attrs["picamcal"] = record
     writable["0"][3] = np.nan
     writable["0"][7] = np.nan
-    resumed = run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=2)
+    resumed = run_batch(data["cal"], [data["frames"]], BatchOptions(zarr_path=stack, workers=2))
     assert resumed.done == [frames[3], frames[7]] and len(resumed.skipped) == 8
     array = zarr.open_array(stack / "0", mode="r")
     for i in (3, 7):
@@ -300,10 +425,10 @@ def test_zarr_stack_holds_the_frames_with_ome_metadata_and_resumes(data, tmp_pat
             np.moveaxis(array[i], 0, -1), tifffile.imread(data["reference"] / f"{frames[i].stem}.tiff")
         )
 
-    finished = run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=0)
+    finished = run_batch(data["cal"], [data["frames"]], BatchOptions(zarr_path=stack, workers=0))
     assert finished.done == [] and len(finished.skipped) == 10
     with pytest.raises(OutputError, match="holds a stack of other inputs or settings"):
-        run_batch(data["cal"], [data["frames"]], zarr_path=stack, workers=0, mode="flat")
+        run_batch(data["cal"], [data["frames"]], BatchOptions(zarr_path=stack, workers=0, mode="flat"))
 
 
 def test_a_folder_passes_over_npz_files_that_are_not_raw(tmp_path):
@@ -316,11 +441,12 @@ def test_a_folder_passes_over_npz_files_that_are_not_raw(tmp_path):
     assert expand_inputs([tmp_path]) == [tmp_path / "frame.npz"]
 
 
+@pytest.mark.slow
 def test_zarr_mosaic_places_each_frame_as_its_tile_and_resumes(data, tmp_path):
     zarr = pytest.importorskip("zarr")
     frames = sorted(data["frames"].iterdir())[:5]
     mosaic = tmp_path / "mosaic.zarr"
-    result = run_batch(data["cal"], frames, zarr_path=mosaic, mosaic=(3, 2), workers=2)
+    result = run_batch(data["cal"], frames, BatchOptions(zarr_path=mosaic, mosaic=(3, 2), workers=2))
     assert len(result.done) == 5 and not result.failed
     array = zarr.open_array(mosaic / "0", mode="r")
     height, width = tifffile.imread(data["reference"] / "f00.tiff").shape[:2]
@@ -332,7 +458,7 @@ def test_zarr_mosaic_places_each_frame_as_its_tile_and_resumes(data, tmp_path):
             np.moveaxis(tile, 0, -1), tifffile.imread(data["reference"] / f"{frame.stem}.tiff")
         )
     assert np.isnan(array[0, :, height:, 2 * width :]).all()  # the sixth tile: no frame, fill value
-    again = run_batch(data["cal"], frames, zarr_path=mosaic, mosaic=(3, 2), workers=0)
+    again = run_batch(data["cal"], frames, BatchOptions(zarr_path=mosaic, mosaic=(3, 2), workers=0))
     assert again.done == [] and len(again.skipped) == 5
     with pytest.raises(PicamcalError, match="5 frames do not fit a mosaic of 2 x 2 tiles"):
-        run_batch(data["cal"], frames, zarr_path=tmp_path / "small.zarr", mosaic=(2, 2), workers=0)
+        run_batch(data["cal"], frames, BatchOptions(zarr_path=tmp_path / "small.zarr", mosaic=(2, 2), workers=0))

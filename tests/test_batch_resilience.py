@@ -22,7 +22,7 @@ import tifffile
 from conftest import simulated_calibration
 from picamcal import load_calibration
 from picamcal._atomic import make_temporary, remove_stale_temporaries, temporary_name
-from picamcal.batch import run_batch
+from picamcal.batch import BatchOptions, run_batch
 from picamcal.raw import write_dng
 from picamcal.simulate import make_camera, simulate_target
 
@@ -59,7 +59,7 @@ def data(tmp_path_factory) -> dict[str, Path]:
     camera = make_camera("imx219", size=SIZE)
     for i in range(3):
         write_dng(good / f"f{i}.dng", simulate_target(camera, seed=10 + i)[0])
-    assert len(run_batch(root / "cal.npz", [good], root / "reference", workers=0).done) == 3
+    assert len(run_batch(root / "cal.npz", [good], BatchOptions(out_dir=root / "reference", workers=0)).done) == 3
     small, _ = simulate_target(make_camera("imx219", size=(160, 120)), seed=1)
     write_dng(root / "small.dng", small)
     (root / "truncated.dng").write_bytes((good / "f0.dng").read_bytes()[:3000])
@@ -74,6 +74,7 @@ def folder_with(data: dict[str, Path], folder: Path, bad: dict[str, Path]) -> Pa
     return folder
 
 
+@pytest.mark.slow
 def test_a_first_file_of_another_size_does_not_stop_the_good_ones(data, tmp_path):
     frames = folder_with(data, tmp_path / "frames", {"a_small.dng": data["root"] / "small.dng"})
     out = tmp_path / "out"
@@ -89,6 +90,7 @@ def test_a_first_file_of_another_size_does_not_stop_the_good_ones(data, tmp_path
     }
 
 
+@pytest.mark.slow
 def test_a_first_file_that_is_corrupt_does_not_stop_the_good_ones(data, tmp_path):
     bad = {"a_truncated.dng": data["root"] / "truncated.dng", "f1b_small.dng": data["root"] / "small.dng"}
     frames = folder_with(data, tmp_path / "frames", bad)
@@ -105,6 +107,7 @@ def test_a_first_file_that_is_corrupt_does_not_stop_the_good_ones(data, tmp_path
     }
 
 
+@pytest.mark.slow
 def test_a_241_character_stem_is_written_and_its_temporary_name_fits(data, tmp_path):
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -154,6 +157,7 @@ def temporary_of_a_process(target: Path, *, until: str, folder: bool = False, su
     return Path(os.fsdecode(name.strip())), pid
 
 
+@pytest.mark.slow
 def test_stale_temporaries_of_ended_processes_are_removed_and_nothing_else(data, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
@@ -188,7 +192,7 @@ def test_stale_temporaries_of_ended_processes_are_removed_and_nothing_else(data,
 def test_a_zarr_stack_keeps_the_chunk_temporaries_of_a_live_run(data, tmp_path):
     zarr = pytest.importorskip("zarr")
     stack = tmp_path / "frames.zarr"
-    run_batch(data["cal"], [data["good"]], zarr_path=stack, workers=0)
+    run_batch(data["cal"], [data["good"]], BatchOptions(zarr_path=stack, workers=0))
 
     def forget_the_last_frame_and_leave_a_partial() -> Path:
         group = zarr.open_group(stack, mode="r+")
@@ -200,12 +204,12 @@ def test_a_zarr_stack_keeps_the_chunk_temporaries_of_a_live_run(data, tmp_path):
     partial = forget_the_last_frame_and_leave_a_partial()
     marker, live_pid = temporary_of_a_process(stack, until=CHILD_STAYS, suffix=".writing")
     try:
-        resumed = run_batch(data["cal"], [data["good"]], zarr_path=stack, workers=0)
+        resumed = run_batch(data["cal"], [data["good"]], BatchOptions(zarr_path=stack, workers=0))
         assert len(resumed.done) == 1 and partial.exists() and marker.exists()  # another run may be writing it
     finally:
         os.kill(live_pid, 9)
         os.waitpid(live_pid, 0)
     partial = forget_the_last_frame_and_leave_a_partial()
-    resumed = run_batch(data["cal"], [data["good"]], zarr_path=stack, workers=0)
+    resumed = run_batch(data["cal"], [data["good"]], BatchOptions(zarr_path=stack, workers=0))
     assert len(resumed.done) == 1 and not partial.exists() and not marker.exists()  # a killed run's
     assert hidden(tmp_path) == [] and list(stack.rglob("*.partial")) == []

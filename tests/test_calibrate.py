@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from conftest import linear_mixing, render_linear
 from picamcal import CalibrationInputError, PicamcalWarning, calibrate, correct
-from picamcal.bayer import bin_sites, sites_to_channels
-from picamcal.calibrate import centre_region, invert_3x3
+from picamcal.bayer import bin_sites, centre_region, sites_to_channels
+from picamcal.calibrate import REFUSE_CONDITION, REFUSE_WHITE_FRACTION, invert_3x3
 from picamcal.raw import RawImage
 
 
@@ -46,6 +46,14 @@ def test_centre_region_is_the_central_ninth():
     # The paper's 2019 code took rows 4/9 to the bottom edge; this must be the middle third in each axis.
     assert centre_region(154, 205) == (51, 102, 68, 136)
     assert centre_region(9, 9) == (3, 6, 3, 6)
+    assert centre_region(2, 2) == (0, 1, 0, 1)  # at least one bin each way, however small the grid
+
+
+def test_the_calibration_records_the_central_ninth_it_unmixed_to(linear_refs):
+    cal = calibrate(**linear_refs)
+    assert cal.centre_region == centre_region(*cal.bins) == (4, 8, 5, 10)  # 12 x 16 bins of 16 pixels
+    m = cal.crosstalk[cal.centre_slices].reshape(-1, 3, 3).mean(axis=0)
+    np.testing.assert_allclose(cal.centre_response, m, rtol=1e-6)  # M_centre is M's mean over that region
 
 
 def test_white_maps_to_one_and_centre_unmixing_is_identity(linear_refs):
@@ -114,7 +122,8 @@ def test_black_frame_is_used_when_given(linear_refs):
     # With the dark frame the 5 DN offset is removed exactly; without it, it biases the white.
     np.testing.assert_allclose(with_black.white, calibrate(**linear_refs).white, rtol=1e-6)
     assert np.all(without.white > with_black.white + 4.9)
-    assert with_black.meta["black_frame"] and not without.meta["black_frame"]
+    assert with_black.provenance["black_frame"] and not without.provenance["black_frame"]
+    assert (with_black.black_level_source, without.black_level_source) == ("dark frame", "references")
 
 
 def test_smoothing_reduces_noise_in_the_fields(linear_refs):
@@ -164,7 +173,8 @@ def test_bad_references_are_refused_with_the_file_named(linear_refs):
     with pytest.raises(CalibrationInputError, match="<white>: white reference is saturated"):
         calibrate(**{**refs, "white": saturated})
     dark = _with(refs["white"], bayer=(64 + (refs["white"].bayer - 64) // 40).astype(np.uint16))
-    with pytest.raises(CalibrationInputError, match="<white>: white reference is too dark"):
+    refused = rf"<white>: white reference is too dark: .* \(at least {100 * REFUSE_WHITE_FRACTION:.0f} % needed\)"
+    with pytest.raises(CalibrationInputError, match=refused):
         calibrate(**{**refs, "white": dark})
     with pytest.raises(CalibrationInputError, match=r"<white>: black frame .* not darker"):
         calibrate(**{**refs, "black": _with(refs["white"])})
@@ -175,7 +185,7 @@ def test_bad_references_are_refused_with_the_file_named(linear_refs):
 def test_colourless_references_are_refused(linear_refs):
     refs = dict(linear_refs)
     grey = {k: refs["white"] for k in ("red", "green", "blue")}
-    with pytest.raises(CalibrationInputError, match="do not separate the colours"):
+    with pytest.raises(CalibrationInputError, match=rf"do not separate the colours: .*> {REFUSE_CONDITION:g}\)"):
         calibrate(refs["white"], **grey)
 
 
@@ -186,6 +196,6 @@ def test_a_few_ill_conditioned_bins_are_filled_and_reported(linear_refs):
     with pytest.warns(PicamcalWarning, match="1 of 192 bins have an ill-conditioned"):
         cal = calibrate(**{**refs, "red": _with(refs["red"], bayer=red)})
     assert cal.ill_conditioned[0, 0] and cal.ill_conditioned.sum() == 1
-    assert cal.meta["ill_conditioned_bins"] == 1
+    assert cal.ill_conditioned_bins == 1 and cal.to_record()["ill_conditioned_bins"] == 1
     neighbours = [cal.unmixing[0, 1], cal.unmixing[1, 0], cal.unmixing[1, 1]]
     assert any(np.array_equal(cal.unmixing[0, 0], n) for n in neighbours)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from picamcal import load_calibration, read_raw
+from picamcal import Mode, load_calibration, read_raw
 from picamcal.raw import write_dng
 
 SIM_SIZE = "320x240"
@@ -57,6 +57,7 @@ def snapshot(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_simulate_writes_a_run(sim):
     names = {p.name for p in sim.iterdir()}
     assert {"white.dng", "red.dng", "green.dng", "blue.dng", "black.dng", "target.dng", "layout.json"} <= names
@@ -64,6 +65,7 @@ def test_simulate_writes_a_run(sim):
     assert (raw.width, raw.height, raw.pattern, raw.sensor) == (320, 240, "BGGR", "imx219")
 
 
+@pytest.mark.slow
 def test_calibrate_from_a_folder_equals_calibrate_from_named_files(sim, cal_path, tmp_path):
     named = tmp_path / "named.npz"
     result = run(
@@ -75,9 +77,10 @@ def test_calibrate_from_a_folder_equals_calibrate_from_named_files(sim, cal_path
     assert result.returncode == 0, result.stderr
     a, b = load_calibration(cal_path), load_calibration(named)
     np.testing.assert_array_equal(a.unmixing, b.unmixing)
-    assert [i["sha256"] for i in a.meta["inputs"]] == [i["sha256"] for i in b.meta["inputs"]]
+    assert [i["sha256"] for i in a.inputs] == [i["sha256"] for i in b.inputs]
 
 
+@pytest.mark.slow
 def test_calibrate_finds_paper_style_names(sim, tmp_path):
     folder = tmp_path / "paper"
     folder.mkdir()
@@ -91,7 +94,7 @@ def test_calibrate_finds_paper_style_names(sim, tmp_path):
         shutil.copy(sim / f"{role}.dng", folder / "capture_r{}_g{}_b{}.dng".format(*rgb))
     result = run("calibrate", str(folder), "--out", str(tmp_path / "cal.npz"))
     assert result.returncode == 0, result.stderr
-    assert {i["role"] for i in load_calibration(tmp_path / "cal.npz").meta["inputs"]} == {
+    assert {i["role"] for i in load_calibration(tmp_path / "cal.npz").inputs} == {
         "white",
         "red",
         "green",
@@ -100,6 +103,7 @@ def test_calibrate_finds_paper_style_names(sim, tmp_path):
     }
 
 
+@pytest.mark.slow
 def test_correct_writes_float_tiffs_and_never_overwrites(sim, cal_path, tmp_path):
     out = tmp_path / "out"
     before = snapshot(sim)
@@ -120,6 +124,7 @@ def test_correct_writes_float_tiffs_and_never_overwrites(sim, cal_path, tmp_path
     assert snapshot(sim) == before  # inputs are never modified
 
 
+@pytest.mark.slow
 def test_demo_runs_and_writes_its_outputs(tmp_path):
     out = tmp_path / "demo"
     result = run("demo", "--out", str(out), "--size", "480x360")
@@ -127,13 +132,15 @@ def test_demo_runs_and_writes_its_outputs(tmp_path):
     assert "centre" in result.stdout and "ΔE2000" in result.stdout
     figures = json.loads((out / "figures.json").read_text())
     assert figures["modes"]["centre"]["max_delta_e"] < 1.0 < figures["modes"]["flat"]["max_delta_e"]
-    for mode in ("balance", "flat", "centre", "pure"):
+    for mode in ("uncorrected", "flat", "centre", "pure"):
         assert (out / f"target_{mode}.png").stat().st_size > 1000
+    assert figures["mode_meaning"] == {mode.value: mode.description for mode in Mode}  # one definition
     assert load_calibration(out / "calibration.npz").sensor == "imx219"
     assert_bad_input(run("demo", "--out", str(out), "--size", "480x360"), "not empty")
 
 
 # ---------------------------------------------------------------------------------------------- bad input
+@pytest.mark.slow
 def test_missing_and_non_raw_inputs(sim, tmp_path):
     png = tmp_path / "picture.png"
     png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(64))
@@ -149,6 +156,7 @@ def test_missing_and_non_raw_inputs(sim, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_references_that_do_not_match(sim, tmp_path):
     other = tmp_path / "other"
     result = run("simulate", "--out", str(other), "--size", "256x192", "--seed", "1")
@@ -169,6 +177,7 @@ def test_references_that_do_not_match(sim, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_saturated_dark_and_swapped_references(sim, tmp_path):
     white = read_raw(sim / "white.dng")
     bright = tmp_path / "bright.dng"
@@ -191,6 +200,7 @@ def test_saturated_dark_and_swapped_references(sim, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_calibration_that_does_not_fit_the_image(cal_path, tmp_path):
     other = tmp_path / "other"
     assert run("simulate", "--out", str(other), "--sensor", "imx477", "--size", SIM_SIZE).returncode == 0
@@ -205,6 +215,7 @@ def test_calibration_that_does_not_fit_the_image(cal_path, tmp_path):
     assert not out.exists() or not any(out.iterdir())
 
 
+@pytest.mark.slow
 def test_corrupt_calibration(sim, tmp_path):
     bad = tmp_path / "cal.npz"
     bad.write_bytes(b"PK\x03\x04 this is not a zip")
@@ -220,6 +231,7 @@ def test_corrupt_calibration(sim, tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_refuses_to_overwrite_calibration_or_an_input(sim, cal_path, tmp_path):
     assert_bad_input(run("calibrate", str(sim), "--out", str(cal_path)), "exists already")
     result = run("calibrate", str(sim), "--out", str(sim / "white.dng"), "--overwrite")

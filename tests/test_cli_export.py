@@ -27,6 +27,7 @@ def run_dir(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_export_and_apply_tuning(run_dir, tmp_path):
     for base in (VC4, PISP):
         out = tmp_path / f"{base.stem}.json"
@@ -58,6 +59,7 @@ def test_export_and_apply_tuning(run_dir, tmp_path):
         assert green.std() / green.mean() < 0.02  # luminance strength 0.9 leaves a tenth of the vignetting
 
 
+@pytest.mark.slow
 def test_export_lst(run_dir, tmp_path):
     result = run("export-lst", str(run_dir / "cal.npz"), "--out", str(tmp_path / "lst.npy"))
     assert result.returncode == 0, result.stderr
@@ -65,6 +67,7 @@ def test_export_lst(run_dir, tmp_path):
     assert table.shape == (4, 480 // 64 + 1, 640 // 64 + 1) and table.dtype == np.uint8 and table.min() >= 32
 
 
+@pytest.mark.slow
 def test_correct_processed_with_the_tuning_it_was_taken_with(run_dir, tmp_path):
     from picamcal import read_raw
     from picamcal.export.isp import apply_tuning
@@ -118,6 +121,7 @@ def test_correct_processed_with_the_tuning_it_was_taken_with(run_dir, tmp_path):
     assert wheel_figures(tifffile.imread(tmp_path / "out" / "isp.tiff"), layout)["max_delta_e"] < 1.0
 
 
+@pytest.mark.slow
 def test_bad_inputs(run_dir, tmp_path):
     cal = str(run_dir / "cal.npz")
     bad = tmp_path / "v1.json"
@@ -162,6 +166,7 @@ def test_bad_inputs(run_dir, tmp_path):
     assert not (tmp_path / "a.tiff").exists()
 
 
+@pytest.mark.slow
 def test_demo_writes_the_tuning_files_and_the_legacy_table(tmp_path):
     out = tmp_path / "demo"
     result = run("demo", "--out", str(out), "--size", "640x480", "--tuning-base", str(VC4), "--tuning-base", str(PISP))
@@ -174,6 +179,7 @@ def test_demo_writes_the_tuning_files_and_the_legacy_table(tmp_path):
     assert "tuning_pisp.json" in result.stdout
 
 
+@pytest.mark.slow
 def test_export_tuning_without_a_base_uses_the_bundled_stock_files(run_dir, tmp_path):
     from picamcal.export.tuning import BUNDLED_TUNING_DIR, check_tuning
 
@@ -199,14 +205,14 @@ def test_export_tuning_without_a_base_uses_the_bundled_stock_files(run_dir, tmp_
 def test_bundled_tuning_files_are_raspberry_pis_unchanged():
     from picamcal.export.tuning import BUNDLED_TUNING_DIR
 
-    shared = Path(__file__).parents[2] / "shared" / "data" / "libcamera-tuning"
-    if not shared.is_dir():
-        pytest.skip("../shared is not beside the project")
-    for path in shared.glob("*/*.json"):
+    stock = sorted((Path(__file__).parent / "data" / "libcamera-tuning").glob("*/*.json"))
+    assert len(stock) == 8  # vc4 and pisp, four sensors each
+    for path in stock:
         assert (BUNDLED_TUNING_DIR / path.parent.name / path.name).read_bytes() == path.read_bytes()
     assert "Redistribution" in (BUNDLED_TUNING_DIR / "LICENSE").read_text()
 
 
+@pytest.mark.slow
 def test_export_tuning_bad_targets(run_dir, tmp_path):
     cal = str(run_dir / "cal.npz")
     assert_bad_input(run("export-tuning", cal, "--out", str(tmp_path / "x"), "--target", "vc-4"), "did you mean vc4")

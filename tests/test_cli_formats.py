@@ -13,6 +13,10 @@ from picamcal import load_calibration, read_raw
 from picamcal.raw import override, write_dng
 from test_cli import assert_bad_input, run
 
+# Every test runs the command line several times (a second or more each) on a 640 x 480 run: the fast loop leaves
+# them out; tests/test_brcm.py, test_dng.py, test_picamera2.py and test_processed.py test the formats quickly.
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def brcm_run(tmp_path_factory) -> Path:
@@ -25,7 +29,7 @@ def brcm_run(tmp_path_factory) -> Path:
 def test_calibrate_and_correct_legacy_jpeg_raw_files(brcm_run, tmp_path):
     cal = tmp_path / "cal.npz"
     assert run("calibrate", str(brcm_run), "--out", str(cal)).returncode == 0
-    inputs = load_calibration(cal).meta["inputs"]
+    inputs = load_calibration(cal).inputs
     assert {i["format"] for i in inputs} == {"brcm"}  # the calibration records where each reference came from
     result = run("correct", str(cal), str(brcm_run / "target.jpg"), "--out", str(tmp_path / "out"))
     assert result.returncode == 0, result.stderr
@@ -47,7 +51,7 @@ def test_mixed_formats_in_one_calibration(brcm_run, tmp_path):
         str(tmp_path / "cal.npz"),
     )
     assert result.returncode == 0, result.stderr
-    formats = {i["role"]: i["format"] for i in load_calibration(tmp_path / "cal.npz").meta["inputs"]}
+    formats = {i["role"]: i["format"] for i in load_calibration(tmp_path / "cal.npz").inputs}
     assert formats == {"white": "brcm", "red": "npz", "green": "brcm", "blue": "brcm"}
 
 
@@ -165,7 +169,7 @@ def test_every_format_gives_the_same_calibration(tmp_path):
         result = run("calibrate", str(folder), "--out", str(tmp_path / f"{fmt}.npz"))
         assert result.returncode == 0, result.stderr
         cal = load_calibration(tmp_path / f"{fmt}.npz")
-        assert {i["format"] for i in cal.meta["inputs"]} == {fmt if fmt != "npy" else "picamera2-npy"}
+        assert {i["format"] for i in cal.inputs} == {fmt if fmt != "npy" else "picamera2-npy"}
         unmixing[fmt] = cal.unmixing
         suffix = {"dng": ".dng", "brcm": ".jpg", "npy": ".npy", "npz": ".npz"}[fmt]
         listed = run("inspect", str(folder / f"target{suffix}"), "--json")

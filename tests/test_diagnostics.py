@@ -6,7 +6,6 @@ sensor, and the dust specks it put on the white reference.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import json
 import math
@@ -18,6 +17,7 @@ from PIL import Image
 from picamcal import calibrate
 from picamcal.analysis import diagnostics, figures
 from picamcal.analysis.diagnostics import (
+    WARN_CONDITION,
     Check,
     check_conditioning,
     check_dust,
@@ -32,6 +32,7 @@ from picamcal.analysis.diagnostics import (
     roughness,
     vignetting_centre,
 )
+from picamcal.calibrate import REFUSE_CONDITION, REFUSE_WHITE_FRACTION
 from picamcal.errors import CalibrationFileError, OutputError
 from picamcal.raw import RawImage
 from picamcal.simulate import make_camera, simulate_references
@@ -205,10 +206,19 @@ def test_exposure_warns_about_a_clipped_reference(clean_refs):
 
 
 def test_exposure_warns_about_clipping_recorded_in_the_inputs(clean_noisy):
-    cal = copy.deepcopy(clean_noisy)
-    cal.meta["inputs"][0]["clipped_fraction"] = 2e-5  # below what calibrate refuses for the white
+    white = {**clean_noisy.inputs[0], "clipped_fraction": 2e-5}  # below what calibrate refuses for the white
+    cal = dataclasses.replace(
+        clean_noisy, provenance={**clean_noisy.provenance, "inputs": [white, *clean_noisy.inputs[1:]]}
+    )
     check = check_exposure(cal)
     assert check.verdict == "warn" and "white reference" in check.summary
+
+
+def test_exposure_of_a_calibration_without_a_white_level_is_one_clear_error(clean_noisy):
+    # Levels are fractions of the range up to the white level: without it (a file that lacks the key) nothing
+    # can be judged, and the error says so instead of a KeyError.
+    with pytest.raises(CalibrationFileError, match="does not record its references' white level"):
+        check_exposure(dataclasses.replace(clean_noisy, white_level=None))
 
 
 @pytest.mark.parametrize(("role", "factor"), [("white", 0.25), ("red", 0.1)])
@@ -229,10 +239,11 @@ def test_conditioning(clean_noisy):
     # The simulated IMX219's crosstalk matrices have condition numbers of 3.2 (centre) to about 7 (corners).
     assert check.verdict == "pass" and 5 < check.values["worst_condition"] < 10
     assert check_conditioning(clean_noisy, max_condition=4.0).verdict == "warn"
-    cal = copy.deepcopy(clean_noisy)
-    cal.meta["ill_conditioned_bins"] = 3
-    warned = check_conditioning(cal)
+    bad = np.zeros_like(clean_noisy.ill_conditioned)
+    bad[5, 6:9] = True  # as if calibrate had filled three bins from their neighbours
+    warned = check_conditioning(dataclasses.replace(clean_noisy, ill_conditioned=bad))
     assert warned.verdict == "warn" and "3 of 1200 bins" in warned.summary
+    assert warned.values["refuse_condition"] == REFUSE_CONDITION > warned.values["max_condition"] == WARN_CONDITION
 
 
 def test_noise_penalty(clean_noisy):
@@ -288,7 +299,10 @@ def test_checks_serialise_to_json(clean_noisy):
 
 
 def test_thresholds_are_documented_constants():
-    assert diagnostics.MAX_CENTRE_OFFSET_PERCENT == 2.0 and diagnostics.MAX_NOISE_PENALTY == 5.0
+    assert diagnostics.WARN_CENTRE_OFFSET_PERCENT == 2.0 and diagnostics.WARN_NOISE_PENALTY == 5.0
+    # The diagnostics warn well before calibrate refuses: distinct names for distinct meanings.
+    assert diagnostics.WARN_CONDITION == 20.0 < REFUSE_CONDITION == 100.0
+    assert diagnostics.WARN_WHITE_FRACTION == 0.2 > REFUSE_WHITE_FRACTION == 0.05
 
 
 # Figures ------------------------------------------------------------------------------------------------

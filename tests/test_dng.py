@@ -24,7 +24,7 @@ import tifffile
 from picamcal import RawFormatError, read_raw
 from picamcal.acquire.acquisition import acquire, load_manifest
 from picamcal.acquire.cameras import SimCamera
-from picamcal.errors import PicamcalWarning
+from picamcal.errors import OutputError, PicamcalWarning
 from picamcal.raw import RawImage, write_dng
 from picamcal.raw.picamera2 import from_picamera2, to_picamera2
 from picamcal.simulate import expected_response, make_camera, simulate_references, simulate_target
@@ -234,6 +234,7 @@ EDITORS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("editor", EDITORS)
 def test_raw_editors_render_the_white_neutral_and_the_colour_right(tmp_path, white, colour_raw, editor):
     # The editors a user opens the DNG in, with their default processing (as-shot white balance, the DNG's
@@ -415,9 +416,34 @@ def test_unknown_black_level_and_bad_colour_metadata_are_refused(tmp_path, white
     assert list(tmp_path.iterdir()) == []  # nothing written, not even a temporary file
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "error", "message"),
+    [
+        # These escaped as ValueError, TypeError, OverflowError, or an OutputError naming no file: now picamcal's
+        # RawFormatError naming the key.
+        ("exposure_time_s", "fast", RawFormatError, "metadata exposure_time_s must be a positive number, not 'fast'"),
+        ("exposure_time_s", -0.01, RawFormatError, "metadata exposure_time_s must be a positive number, not -0.01"),
+        ("analogue_gain", [2.0], RawFormatError, r"metadata analogue_gain must be a positive number, not \[2.0\]"),
+        ("iso", float("inf"), RawFormatError, "metadata iso must be a positive whole number, not inf"),
+        ("calibration_illuminant1", "D65", RawFormatError, "calibration_illuminant1 must be an EXIF LightSource"),
+        # A value no TIFF rational holds: the error names the file being written.
+        ("exposure_time_s", 2.0**40, OutputError, r"^.*x\.dng: 1099511627776.0 does not fit a TIFF rational$"),
+    ],
+)
+def test_malformed_exposure_metadata_is_refused_naming_the_key(tmp_path, white, key, value, error, message):
+    bad = without(white, "analogue_gain") if key == "iso" else without(white)  # a gain gives the ISO
+    bad.metadata[key] = value
+    if key == "calibration_illuminant1":
+        bad.metadata["color_matrix1"] = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]  # the illuminant goes with a DNG's matrix
+    with pytest.raises(error, match=message):
+        write_dng(tmp_path / "x.dng", bad)
+    assert list(tmp_path.iterdir()) == []
+
+
 # --- docs/dng.md's examples run ------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_docs_examples_run(tmp_path, monkeypatch, capsys):
     need("exiftool", "dcraw", "raw-identify")
     text = (Path(__file__).resolve().parents[1] / "docs" / "dng.md").read_text()

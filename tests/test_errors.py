@@ -19,6 +19,7 @@ def sim_run(tmp_path_factory) -> tuple[Path, Path]:
     return folder / "sim", folder / "cal.npz"
 
 
+@pytest.mark.slow
 def test_a_jpeg_given_as_raw_is_pointed_to_processed(sim_run, tmp_path):
     sim, cal = sim_run
     Image.fromarray(np.full((240, 320, 3), 128, np.uint8)).save(tmp_path / "photo.jpg")
@@ -36,6 +37,7 @@ def test_a_jpeg_given_as_raw_is_pointed_to_processed(sim_run, tmp_path):
     assert not (tmp_path / "c.npz").exists()
 
 
+@pytest.mark.slow
 def test_a_raw_image_given_as_processed_is_told_so(sim_run, tmp_path):
     sim, cal = sim_run
     result = run("correct", str(cal), str(sim / "target.dng"), "--processed", "--out", str(tmp_path / "o"))
@@ -43,6 +45,7 @@ def test_a_raw_image_given_as_processed_is_told_so(sim_run, tmp_path):
     assert "target.dng: a DNG raw image, not a processed one: leave out --processed" in result.stderr
 
 
+@pytest.mark.slow
 def test_choices_are_case_insensitive_and_near_misses_get_did_you_mean(sim_run, tmp_path):
     sim, cal = sim_run
     result = run("correct", str(cal), str(sim / "target.dng"), "--out", str(tmp_path / "o"), "--mode", "Centre")
@@ -65,6 +68,7 @@ def test_choices_are_case_insensitive_and_near_misses_get_did_you_mean(sim_run, 
     assert not (tmp_path / "p").exists() and not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow
 def test_usage_errors_are_one_line_too(sim_run):
     _, cal = sim_run
     assert_bad_input(run("correct", str(cal)), "Missing argument", "picamcal correct --help")

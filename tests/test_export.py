@@ -32,8 +32,8 @@ from picamcal.simulate import make_camera, simulate_references, simulate_target
 
 HERE = Path(__file__).parent
 OWN = sorted((HERE / "data").glob("tuning_*.json"))
-SHARED = sorted((HERE.parents[1] / "shared" / "data" / "libcamera-tuning").glob("*/*.json"))
-ALL_TUNINGS = OWN + SHARED
+STOCK = sorted((HERE / "data" / "libcamera-tuning").glob("*/*.json"))
+ALL_TUNINGS = OWN + STOCK
 
 
 def _cv(values: np.ndarray) -> float:
@@ -56,12 +56,13 @@ def sensor_run(request):
 
 
 def _base(target: str, sensor: str) -> dict:
-    for path in SHARED:
+    for path in STOCK:
         if path.parent.name == target and path.stem == sensor:
             return load_tuning(path)
     return load_tuning(HERE / "data" / f"tuning_{target}_imx219.json")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("target", ["vc4", "pisp"])
 def test_round_trip_white_is_flat_through_the_exported_table(sensor_run, target):
     sensor, refs, cal = sensor_run
@@ -72,6 +73,7 @@ def test_round_trip_white_is_flat_through_the_exported_table(sensor_run, target)
     assert all(v < limit for v in flat.values()), flat
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", ALL_TUNINGS, ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_export_keeps_every_other_algorithm_and_obeys_libcamera_rules(path, sensor_run):
     _, _, cal = sensor_run
@@ -106,6 +108,7 @@ def test_export_keeps_every_other_algorithm_and_obeys_libcamera_rules(path, sens
     np.testing.assert_allclose(np.reshape(ccm[0]["ccm"], (3, 3)).sum(axis=1), 1.0, atol=1e-3)  # white stays white
 
 
+@pytest.mark.slow
 def test_gains_above_the_hardware_limit_are_refused_or_clipped(sensor_run):
     _, refs, _ = sensor_run
     dark = copy.deepcopy(refs)
@@ -132,6 +135,7 @@ def test_gains_above_the_hardware_limit_are_refused_or_clipped(sensor_run):
     assert (tables["Cr"] * tables["luminance_lut"]).max() < 8 and tables["luminance_lut"].max() < 8
 
 
+@pytest.mark.slow
 def test_bad_base_files(tmp_path, sensor_run):
     sensor, _, cal = sensor_run
     for content, message in (
@@ -191,6 +195,7 @@ def test_sensor_modes_crop_and_binning_are_resampled_like_libcamera():
     assert _block_flatness(apply_tuning(cropped, tuning, mode=SensorMode.full(320, 240)))["G"] > 0.03
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pattern", ["BGGR", "RGGB", "GBRG"])
 def test_legacy_table(pattern):
     camera = make_camera("imx219", pattern=pattern)

@@ -24,7 +24,7 @@ from picamcal import (
 )
 from picamcal.analysis.metrics import flatness
 from picamcal.bayer import bin_sites
-from picamcal.calibration import FLAT_ARRAYS
+from picamcal.calibration import FLAT_ARRAYS, UNMIXING_ARRAYS
 from picamcal.export.legacy import apply_legacy_table, legacy_table
 from picamcal.export.tuning import export_tuning, load_tuning
 from picamcal.raw.model import site_channels
@@ -91,21 +91,22 @@ def _expected_cv(camera, white: RawImage, frames: int = 1) -> np.ndarray:
 
 def test_a_white_alone_gives_a_flat_calibration_with_only_the_flat_field_arrays(clean, tmp_path):
     _, cal = clean
-    assert cal.kind == "flat" and not cal.has_unmixing and cal.modes == ("balance", "flat")
-    assert set(cal.arrays) == set(FLAT_ARRAYS) and cal.site_responses.shape[0] == 1
-    assert "ill_conditioned_bins" not in cal.meta
+    assert cal.kind == "flat" and not cal.has_unmixing and cal.modes == ("uncorrected", "flat")
+    assert set(cal.to_arrays()) == set(FLAT_ARRAYS) and cal.site_responses.shape[0] == 1
+    assert all(getattr(cal, name) is None for name in UNMIXING_ARRAYS) and cal.ill_conditioned_bins == 0
+    assert "ill_conditioned_bins" not in cal.to_record()
     back = load_calibration(cal.save(tmp_path / "flat.npz"))
-    assert back.kind == "flat" and back.meta == cal.meta and back.path == tmp_path / "flat.npz"
+    assert back.kind == "flat" and back.to_record() == cal.to_record() and back.path == tmp_path / "flat.npz"
     with np.load(tmp_path / "flat.npz", allow_pickle=False) as data:
         assert json.loads(str(data["metadata"]))["kind"] == "flat"
+        assert set(data.files) == {"metadata", *FLAT_ARRAYS}
     # The flat field is the full calibration's, from the same white: one code path for the shared maths.
     refs, _ = clean
     full = calibrate(**refs)
     assert full.kind == "full" and full.has_unmixing
     for name in FLAT_ARRAYS:
-        np.testing.assert_array_equal(
-            cal.arrays[name], full.arrays[name][:1] if name == "site_responses" else full.arrays[name]
-        )
+        whole = getattr(full, name)
+        np.testing.assert_array_equal(getattr(cal, name), whole[:1] if name == "site_responses" else whole)
 
 
 def test_flat_calibration_corrects_an_independent_white(camera, clean):
@@ -116,7 +117,7 @@ def test_flat_calibration_corrects_an_independent_white(camera, clean):
     dim = render(camera, (0.6, 0.6, 0.6), noise=False)
     assert np.all(flatness(correct(dim, cal, "flat", binned=True)) < 2e-4)
     assert np.all(flatness(correct(dim, cal, "flat"), bin_size=16) < 5e-4)
-    assert flatness(correct(dim, cal, "balance", binned=True)).max() > 0.1
+    assert flatness(correct(dim, cal, "uncorrected", binned=True)).max() > 0.1
     # Noisy: calibrated from one noisy white and dark frame, applied to another noisy white. Measured CV
     # 0.51 %, 0.25 %, 0.37 % (R, G, B); the noise model gives 0.48 %, 0.26 %, 0.37 %. The CV of 300 bins
     # scatters by 1 / sqrt(2 * 300) = 4 % of itself, so 15 % is over three standard errors.
@@ -157,13 +158,18 @@ def test_unmixing_modes_are_one_clear_error(clean, tmp_path):
         with pytest.raises(CalibrationFileError, match=message):
             correct(refs["white"], loaded, mode)
     assert loaded.noise_penalty("flat").max() > 1.5  # the vignetting gain at the corners
-    np.testing.assert_allclose(loaded.noise_penalty("balance"), 1.0)
+    np.testing.assert_allclose(loaded.noise_penalty("uncorrected"), 1.0)
     with pytest.raises(CalibrationFileError, match="has no colour unmixing to take"):
         calibrate_in_situ(refs["white"], path)
-    with pytest.raises(AttributeError, match="a flat calibration has no 'unmixing'"):
-        loaded.unmixing  # noqa: B018
+    # Its unmixing fields are None, and everything that needs them says so in one line naming the file and the fix.
+    assert loaded.unmixing is None
+    with pytest.raises(CalibrationFileError, match=rf"^{re.escape(str(path))}: .* no colour unmixing for the matrices"):
+        loaded.require_unmixing("the matrices")
+    with pytest.raises(CalibrationFileError, match="no colour unmixing for mode pure"):
+        loaded.matrices("pure")
 
 
+@pytest.mark.slow
 def test_correct_cli_refuses_centre_on_a_flat_calibration_before_any_work(files, tmp_path):
     out = tmp_path / "corrected"
     result = run("correct", str(files / "flat.npz"), str(files / "target.dng"), "--out", str(out), "--mode", "centre")
@@ -202,8 +208,8 @@ def test_several_frames_are_averaged_and_their_noise_measured(camera, clean):
 
     # Four frames halve the noise of the flat field (measured 1.99); 1200 site-bins give each RMS to 2 %.
     assert rms_error(one) / rms_error(four) == pytest.approx(2.0, rel=0.08)
-    info = four.meta["inputs"][0]
-    assert info["frame_count"] == 4 and len(info["frames"]) == 4 and "frame_count" not in one.meta["inputs"][0]
+    info = four.inputs[0]
+    assert info["frame_count"] == 4 and len(info["frames"]) == 4 and "frame_count" not in one.inputs[0]
     # One frame's temporal noise against the simulator's model, sqrt(mean(S / g + r^2 + 1/12)) = 11.75 DN:
     # measured 11.77 from 4 frames x 77 000 pixels, good to 0.3 %.
     signal = refs["white"].bayer.astype(np.float64) - camera.black_level
@@ -232,6 +238,7 @@ def test_frames_of_one_role_are_checked_one_by_one(camera, clean):
         calibrate(white, refs["red"], refs["green"])
 
 
+@pytest.mark.slow
 def test_a_folder_of_white_frames_and_a_black(camera, tmp_path):
     folder = tmp_path / "microscope"
     folder.mkdir()
@@ -247,10 +254,10 @@ def test_a_folder_of_white_frames_and_a_black(camera, tmp_path):
     single, average = (float(v) for v in re.findall(r"([\d.]+) DN", line))
     assert average == pytest.approx(single / np.sqrt(3), abs=0.01) and 10 < single < 14  # 11.75 DN by the model
     cal = load_calibration(out)
-    white = cal.meta["inputs"][0]
+    white = cal.inputs[0]
     assert cal.kind == "flat" and [f["name"] for f in white["frames"]] == ["white_1.dng", "white_2.dng", "white_3.dng"]
     assert all(len(f["sha256"]) == 64 for f in white["frames"])
-    assert cal.meta["black_level_source"] == "dark frame"
+    assert cal.black_level_source == "dark frame"
     # The same frames named on the command line (--white a b c) give the same calibration.
     frames = [str(folder / f"white_{k}.dng") for k in range(1, 4)]
     result = run(
@@ -264,6 +271,7 @@ def test_a_folder_of_white_frames_and_a_black(camera, tmp_path):
     assert not (tmp_path / "c.npz").exists()
 
 
+@pytest.mark.slow
 def test_swapped_arguments_are_named_as_such(files, tmp_path):
     white = simulate_references(make_camera("imx219", size=SIZE), noise=False)["white"]
     write_npz(tmp_path / "frame.npz", white)
@@ -296,6 +304,7 @@ def test_swapped_arguments_are_named_as_such(files, tmp_path):
     assert "pickle" not in str(caught.value)
 
 
+@pytest.mark.slow
 def test_calibrate_prints_the_verdicts_that_need_a_look(tmp_path):
     camera = make_camera("imx219", size=(640, 480))  # the dust check needs about 30 x 40 bins
     dusty = simulate_references(camera, seed=2, dust=3)
@@ -310,16 +319,17 @@ def test_calibrate_prints_the_verdicts_that_need_a_look(tmp_path):
     assert result.stderr.count("\n") == 1  # "wrote ..." and nothing more when every check passes
 
 
+@pytest.mark.slow
 def test_report_of_a_flat_calibration(files, tmp_path):
     cal = load_calibration(files / "flat.npz")
     index = write_report(cal, tmp_path / "report", test_images=[files / "target.dng"])
     html = index.read_text()
     record = json.loads((tmp_path / "report" / "report.json").read_text())
     assert [c["name"] for c in record["checks"]] == ["vignetting_centre", "dust", "exposure"]
-    assert set(record["test_images"][0]["analysis"]) == {"balance", "flat"}
+    assert set(record["test_images"][0]["analysis"]) == {"uncorrected", "flat"}
     assert "has no colour unmixing" in html and "unmixing_grid" not in html
     images = html.count("<img ")
-    assert images == 5 + 2 * 3  # five flat-field figures; image, wheels and polar plot for balance and flat
+    assert images == 5 + 2 * 3  # five flat-field figures; image, wheels and polar plot for uncorrected and flat
     assert all((tmp_path / "report" / src).is_file() for src in re.findall(r"<img src='([^']+)'", html))
     result = run("report", str(files / "flat.npz"), "--out", str(tmp_path / "cli-report"))
     assert result.returncode == 0, result.stderr
@@ -338,7 +348,7 @@ def test_unknown_black_levels_are_taken_from_the_dark_frame(camera, clean):
     white, dark = _without_black_level(refs["white"]), _without_black_level(refs["black"])
     cal = calibrate(white, black=dark)
     # The noiseless dark frame is exactly the simulator's 64 DN, so the fields match those made with it.
-    assert cal.meta["black_level"] == [64.0] * 4 and cal.meta["black_level_source"] == "dark frame"
+    assert cal.black_level == (64.0,) * 4 and cal.black_level_source == "dark frame"
     np.testing.assert_allclose(cal.site_white, known.site_white, rtol=1e-6)
     dim = render(camera, (0.6, 0.6, 0.6), noise=False)
     for binned in (True, False):
@@ -351,7 +361,7 @@ def test_unknown_black_levels_are_taken_from_the_dark_frame(camera, clean):
     with pytest.raises(RawFormatError, match=r"dump\.raw: no black level: .*--black-level N, a dark frame"):
         calibrate(white)
     without_dark = calibrate(refs["white"])
-    assert without_dark.meta["black_level_source"] == "references"
+    assert without_dark.black_level_source == "references"
     for binned in (True, False):
         with pytest.raises(RawFormatError, match=r"dump\.raw: no black level"):
             correct(_without_black_level(dim), without_dark, "flat", binned=binned)
@@ -386,6 +396,7 @@ def test_old_full_files_load_and_flat_files_are_validated(clean, tmp_path):
         load_calibration(rewrite("f.npz", {**record, "kind": "half"}, **arrays))
 
 
+@pytest.mark.slow
 def test_calibration_file_doc_examples_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     text = (ROOT / "docs" / "calibration-file.md").read_text()
@@ -397,10 +408,11 @@ def test_calibration_file_doc_examples_run(tmp_path, monkeypatch):
         assert result.returncode == 0, (line, result.stderr)
 
 
+@pytest.mark.slow
 def test_analyse_with_a_flat_calibration_compares_the_modes_it_has(files, tmp_path):
     result = run(
         "analyse", str(files / "target.dng"), "--calibration", str(files / "flat.npz"), "--out", str(tmp_path / "a")
     )
     assert result.returncode == 0, result.stderr
     analysis = json.loads((tmp_path / "a" / "target_analysis.json").read_text())["analysis"]
-    assert set(analysis) == {"balance", "flat"}
+    assert set(analysis) == {"uncorrected", "flat"}

@@ -274,6 +274,7 @@ def originals(tmp_path_factory) -> dict[str, bytes]:
 _FUZZ = settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
+@pytest.mark.slow
 @_FUZZ
 @given(rng=st.randoms(use_true_random=False), packed=st.booleans(), which=st.sampled_from(["npy", "json", "both"]))
 def test_fuzz_mutated_picamera2_dumps_raise_only_picamcal_errors(tmp_path, originals, rng, packed, which):
@@ -708,6 +709,7 @@ def _sparse(path: Path, head: bytes, size: int) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_memory_forged_picamera2_npy_sizes(tmp_path):
     array, config, metadata = to_picamera2(_full_frame())
     legit = write_picamera2_npy(tmp_path / "legit.npy", array, config, metadata, sensor="imx219")
@@ -740,6 +742,7 @@ def _zip_member(path: Path, members: dict[str, bytes], stream: tuple[str, bytes,
     return path
 
 
+@pytest.mark.slow
 def test_memory_forged_raw_npz_sizes(tmp_path):
     legit = write_npz(tmp_path / "legit.npz", _full_frame())
     with zipfile.ZipFile(legit) as archive:
@@ -761,6 +764,7 @@ def test_memory_forged_raw_npz_sizes(tmp_path):
     _assert_refused_cheaply([str(legit)], forged)
 
 
+@pytest.mark.slow
 def test_memory_forged_headless_size(tmp_path):
     legit = tmp_path / "legit.raw"
     legit.write_bytes(pack(_full_frame().bayer, 10, 4128).tobytes())  # RAW10 rows of 4100 bytes padded to 4128
@@ -771,7 +775,8 @@ def test_memory_forged_headless_size(tmp_path):
 
 def test_the_docs_limits_example_runs(tmp_path, monkeypatch, capsys):
     text = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
-    (block,) = re.findall(r"```python\n(.*?)```", text[text.index("## Limits") :], re.DOTALL)
+    section = text[text.index("## Limits") :].split("\n## ", 1)[0]
+    (block,) = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("PICAMCAL_MAX_PIXELS", raising=False)
     exec(compile(block, "docs/formats.md", "exec"), {})

@@ -142,6 +142,7 @@ def _strip_start(data: bytes) -> int:
 # --- DNG: property tests ----------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data(), kind=st.sampled_from(["uncompressed", "ljpeg"]))
 def test_dng_byte_changes_give_only_picamcal_errors(tmp_path, capfd, dngs, data, kind):
@@ -201,6 +202,7 @@ RECORD_KEYS += ["timestamp", "make", "model", "colour_temperature", "sensor_size
     ),
     deep=st.sampled_from([0, 40, 10000]),
 )
+@pytest.mark.slow
 def test_dng_description_json_is_checked(tmp_path, capfd, record, deep):
     # picamcal's own record in ImageDescription, replaced by any JSON: wrong kinds, not an object, 10000 deep.
     if deep and isinstance(record, dict):
@@ -391,12 +393,14 @@ def corrupt_ljpeg(tmp_path_factory, dngs) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_libraw_output_is_folded_into_the_one_error_line(corrupt_ljpeg):
     result = run("inspect", str(corrupt_ljpeg))
     assert_bad_input(result, str(corrupt_ljpeg), "LibRaw cannot read it", "LibRaw said: data corrupted at ")
     assert result.stderr.count("data corrupted") == 1  # LibRaw's own line is not printed beside it
 
 
+@pytest.mark.slow
 def test_libraw_output_stays_with_its_own_read_when_threads_read_at_once(tmp_path, capfd, corrupt_ljpeg, dngs):
     # Two threads, one reading a good DNG and one the corrupt one, many times: the descriptor swap is locked, so
     # every error carries LibRaw's message, no good read gets a warning, and fd 2 is restored every time.
@@ -439,6 +443,7 @@ def _block_start(data: bytes) -> int:
     return len(data) - 445440  # the IMX219 640x480 block
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_brcm_byte_changes_and_truncation_give_only_picamcal_errors(tmp_path, capfd, brcm, data):
@@ -457,6 +462,7 @@ def test_brcm_byte_changes_and_truncation_give_only_picamcal_errors(tmp_path, ca
     outcome(read_brcm, path, capfd)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_brcm_header_field_rewrites_give_only_picamcal_errors(tmp_path, capfd, brcm, data):
@@ -475,6 +481,7 @@ def test_brcm_header_field_rewrites_give_only_picamcal_errors(tmp_path, capfd, b
         assert result.bayer.shape == (480, 640) and result.pattern in ("RGGB", "GBRG", "BGGR", "GRBG")
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_brcm_exif_tag_rewrites_give_only_picamcal_errors(tmp_path, capfd, brcm, data):
@@ -620,6 +627,7 @@ def budget(frames, tmp_path_factory) -> dict[str, float]:
     }
 
 
+@pytest.mark.slow
 def test_forged_dng_sizes_are_refused_in_far_less_memory_than_one_frame(tmp_path, frames, budget):
     # Before these checks, the sparse 16000x16000 file cost 1.5 GB.
     small = frames["small.dng"].read_bytes()
@@ -639,6 +647,7 @@ def test_forged_dng_sizes_are_refused_in_far_less_memory_than_one_frame(tmp_path
         assert peak - budget["correct dng"] < budget["frame"] / 4, (forged.name, peak, budget)
 
 
+@pytest.mark.slow
 def test_a_mismatched_dng_is_refused_before_it_is_decoded(frames, budget):
     # The library alone: read_dng with the calibration's shape refuses a legitimate 3280x2464 frame of another
     # size for what reading the 64x48 file costs, not what decoding the frame costs.
@@ -650,6 +659,7 @@ def test_a_mismatched_dng_is_refused_before_it_is_decoded(frames, budget):
     assert refused - small < budget["frame"] / 4, (small, refused, budget)
 
 
+@pytest.mark.slow
 def test_forged_brcm_files_are_refused_in_far_less_memory_than_one_frame(tmp_path, frames, budget):
     # A header declaring 65535x65535 in a valid block, and a sparse 1 GiB "JPEG" whose only BRCM is 32 MB from its
     # end (the diagnosis scans the last 64 MB: in 1 MB chunks now; through a memory map before, 30 MB more).

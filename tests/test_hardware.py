@@ -112,12 +112,14 @@ def check_render(result: subprocess.CompletedProcess, stl: Path) -> np.ndarray:
     return triangles
 
 
+@pytest.mark.slow
 @needs_openscad
 @pytest.mark.parametrize("part", PARTS)
 def test_each_part_renders_on_its_own_to_a_closed_mesh_without_warnings(renders, part):
     check_render(*renders[part])
 
 
+@pytest.mark.slow
 @needs_openscad
 def test_tube_length_sets_the_printed_tube_height(renders, tmp_path):
     default = parameters(tmp_path, "tube_length")["tube_length"]
@@ -127,6 +129,7 @@ def test_tube_length_sets_the_printed_tube_height(renders, tmp_path):
         assert height == pytest.approx(length, abs=MM_TOLERANCE)
 
 
+@pytest.mark.slow
 @needs_openscad
 def test_parts_come_out_standing_on_the_print_bed(renders):
     for part in PARTS:
@@ -134,6 +137,7 @@ def test_parts_come_out_standing_on_the_print_bed(renders):
         assert lowest == pytest.approx(0, abs=MM_TOLERANCE), part
 
 
+@pytest.mark.slow
 @needs_openscad
 def test_tilted_assembly_renders_from_seat_base_to_led_holder(renders, tmp_path):
     p = parameters(tmp_path, "seat_bottom_z", "seat_top_z", "tube_length", "cap_thickness")

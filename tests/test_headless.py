@@ -345,6 +345,7 @@ HEADLESS = ("--raw-format", "SBGGR10_CSI2P", "--size", "320x240")
 DUMPS = ("white", "red", "green", "blue", "black", "target", "video")
 
 
+@pytest.mark.slow
 def test_cli_inspect_shows_the_frame_count(dumps):
     result = run("inspect", str(dumps / "video.raw"), *HEADLESS, "--json")
     assert result.returncode == 0, result.stderr
@@ -354,6 +355,7 @@ def test_cli_inspect_shows_the_frame_count(dumps):
     assert table.returncode == 0 and "frames" in table.stdout and "headless" in table.stdout
 
 
+@pytest.mark.slow
 def test_cli_calibrate_and_correct_headless_dumps_of_an_unknown_sensor(dumps, tmp_path):
     refs = [f"--{role}={dumps / f'{role}.raw'}" for role in ("white", "red", "green", "blue", "black")]
     cal = tmp_path / "cal.npz"
@@ -388,6 +390,7 @@ def test_cli_calibrate_and_correct_headless_dumps_of_an_unknown_sensor(dumps, tm
         ),
     ],
 )
+@pytest.mark.slow
 def test_cli_bad_headless_input_is_one_line_and_writes_nothing(dumps, tmp_path, extra, fragments):
     cal = tmp_path / "cal.npz"
     refs = [f"--{role}={dumps / f'{role}.raw'}" for role in ("white", "red", "green", "blue")]
@@ -395,6 +398,7 @@ def test_cli_bad_headless_input_is_one_line_and_writes_nothing(dumps, tmp_path, 
     assert not cal.exists() and not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_cli_unknown_sensor_without_a_black_level_is_refused(dumps, tmp_path):
     cal = tmp_path / "cal.npz"
     refs = [f"--{role}={dumps / f'{role}.raw'}" for role in ("white", "red", "green", "blue")]

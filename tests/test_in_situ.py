@@ -7,6 +7,7 @@ import pytest
 
 from picamcal import CalibrationInputError, calibrate, calibrate_in_situ, correct
 from picamcal.analysis.metrics import flatness, wheel_figures
+from picamcal.calibration import UNMIXING_ARRAYS
 from picamcal.raw import RawImage
 from picamcal.simulate import make_camera, render, simulate_references, simulate_target
 
@@ -34,22 +35,26 @@ def jig_and_optics():
 def test_in_situ_keeps_the_jigs_unmixing_and_takes_the_new_flat_field(jig_and_optics):
     jig, optics_white, target, layout = jig_and_optics
     cal = calibrate_in_situ(optics_white, jig)
-    np.testing.assert_allclose(cal.crosstalk, jig.crosstalk, atol=1e-5)  # the jig's colour response, unchanged
-    np.testing.assert_allclose(cal.unmixing, jig.unmixing, atol=1e-5)
+    # The jig's colour response and unmixing, unchanged: the in-situ calibration is the jig's with a new white.
+    for name in UNMIXING_ARRAYS:
+        np.testing.assert_array_equal(getattr(cal, name), getattr(jig, name), err_msg=name)
+    np.testing.assert_allclose(cal.site_white, cal.site_responses[0], rtol=1e-6)  # the new white's flat field
+    ratios = cal.site_responses[1:] / cal.site_responses[0], jig.site_responses[1:] / jig.site_responses[0]
+    np.testing.assert_allclose(*ratios, rtol=1e-5)  # the jig's colour responses, relative to its white, kept
     assert np.all(flatness(correct(optics_white, cal, "flat", binned=True)) < 0.002)
     # The jig's own flat field does not know the optics: a white through them stays far from flat.
     assert np.all(flatness(correct(optics_white, jig, "flat", binned=True)) > 0.05)
     assert wheel_figures(correct(target, cal, "centre"), layout)["max_delta_e"] < 1.0
-    assert cal.meta["in_situ"]["unmixing_from"]["role"] == "unmixing"
-    assert [i["role"] for i in cal.meta["inputs"]] == ["white", "unmixing"]
+    assert cal.provenance["in_situ"]["unmixing_from"]["role"] == "unmixing"
+    assert [i["role"] for i in cal.inputs] == ["white", "unmixing"]
 
 
 def test_in_situ_from_files_records_the_jig(tmp_path, jig_and_optics):
     jig, optics_white, *_ = jig_and_optics
     path = jig.save(tmp_path / "jig.npz")
     cal = calibrate_in_situ(optics_white, path)
-    assert cal.meta["in_situ"]["unmixing_from"]["name"] == "jig.npz"
-    assert len(cal.meta["in_situ"]["unmixing_from"]["sha256"]) == 64
+    assert cal.provenance["in_situ"]["unmixing_from"]["name"] == "jig.npz"
+    assert len(cal.provenance["in_situ"]["unmixing_from"]["sha256"]) == 64
 
 
 def test_in_situ_white_must_fit_the_jig(jig_and_optics):
@@ -70,6 +75,7 @@ def test_in_situ_white_must_fit_the_jig(jig_and_optics):
         calibrate_in_situ(smaller, jig)
 
 
+@pytest.mark.slow
 def test_in_situ_from_the_command_line(tmp_path, jig_and_optics):
     from picamcal import load_calibration
     from picamcal.raw import write_dng
@@ -98,6 +104,7 @@ def test_in_situ_from_the_command_line(tmp_path, jig_and_optics):
     assert result.returncode == 0, result.stderr
 
 
+@pytest.mark.slow
 def test_in_situ_averages_several_white_frames(tmp_path, jig_and_optics):
     from picamcal import load_calibration
     from picamcal.raw import write_dng
@@ -108,7 +115,7 @@ def test_in_situ_averages_several_white_frames(tmp_path, jig_and_optics):
     frames = [_through_optics(render(camera, "white", rng=k)) for k in range(3)]
     cal = calibrate_in_situ(frames, jig)
     np.testing.assert_allclose(cal.unmixing, jig.unmixing, atol=1e-5)  # the jig's unmixing, whatever the white
-    white = cal.meta["inputs"][0]
+    white = cal.inputs[0]
     assert white["frame_count"] == 3 and white["averaged_noise_dn"] < white["temporal_noise_dn"] / 1.7
     # Averaged noisy frames flatten the noiseless white through the optics to their noise (0.3 % in bins).
     assert np.all(flatness(correct(optics_white, cal, "flat", binned=True)) < 0.004)
@@ -121,7 +128,7 @@ def test_in_situ_averages_several_white_frames(tmp_path, jig_and_optics):
     )
     assert result.returncode == 0, result.stderr
     assert "white: 3 frames averaged" in result.stderr
-    assert load_calibration(tmp_path / "c.npz").meta["inputs"][0]["frame_count"] == 3
+    assert load_calibration(tmp_path / "c.npz").inputs[0]["frame_count"] == 3
     result = run(
         "calibrate",
         "--white",

@@ -18,6 +18,7 @@ def acquired(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_a_folder_lists_every_file_and_says_what_the_others_are(acquired):
     result = run("inspect", str(acquired), "--json")
     assert result.returncode == 0, result.stderr
@@ -30,6 +31,7 @@ def test_a_folder_lists_every_file_and_says_what_the_others_are(acquired):
     assert all(r["readable"] for r in records.values())
 
 
+@pytest.mark.slow
 def test_a_bad_file_does_not_stop_the_listing_and_exits_1(acquired, tmp_path):
     (tmp_path / "a_corrupt.dng").write_bytes(b"II*\x00" + bytes(200))
     (tmp_path / "notes.txt").write_text("focus at 3 mm\n")
@@ -47,6 +49,7 @@ def test_a_bad_file_does_not_stop_the_listing_and_exits_1(acquired, tmp_path):
     assert result.stderr == ""
 
 
+@pytest.mark.slow
 def test_a_calibration_is_named_as_such(tmp_path):
     sim = tmp_path / "sim"
     assert run("simulate", "--out", str(sim), "--size", "320x240").returncode == 0

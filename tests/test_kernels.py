@@ -11,6 +11,7 @@ Tolerances, on images whose white reference is 1.0:
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import sys
 import tracemalloc
@@ -23,10 +24,11 @@ from picamcal.bayer import bin_centres
 from picamcal.correct import correction_fields, demosaic
 from picamcal.interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available
+from picamcal.modes import Mode
 from picamcal.raw import PATTERNS, RawImage
 from picamcal.simulate import make_camera, simulate_references, simulate_target
 
-MODES = ("balance", "flat", "centre", "pure")
+MODES = tuple(Mode)
 NUMBA_VS_NUMPY = 1e-6
 FUSED_VS_REFERENCE = 2e-5
 
@@ -190,13 +192,15 @@ def test_out_receives_the_result_and_is_checked(larger):
         correct(target, cal, "flat", engine="cuda")
 
 
-def test_cached_fields_follow_changes_to_the_calibration():
+def test_cached_fields_belong_to_one_calibration_value():
     cal, target = _scene("imx219", "BGGR", (64, 48))
     before = correct(target, cal, "centre", engine="numpy")
-    cal.arrays["unmixing"] = cal.unmixing * np.float32(0.5)  # a new array
-    np.testing.assert_allclose(correct(target, cal, "centre", engine="numpy"), before * 0.5, rtol=1e-5, atol=1e-6)
-    cal.unmixing[:] *= 2  # the same array, changed in place
-    np.testing.assert_allclose(correct(target, cal, "centre", engine="numpy"), before, rtol=1e-5, atol=1e-6)
+    # A changed calibration is a new value: the fields kept for the old one are not used for it.
+    halved = dataclasses.replace(cal, unmixing=cal.unmixing * np.float32(0.5))
+    np.testing.assert_allclose(correct(target, halved, "centre", engine="numpy"), before * 0.5, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(correct(target, cal, "centre", engine="numpy"), before)
+    with pytest.raises(ValueError, match="read-only"):
+        cal.unmixing[:] *= 2  # nothing can change the value the cache was computed from
 
 
 def test_black_level_is_per_site():

@@ -28,7 +28,7 @@ import tifffile
 
 from conftest import simulated_calibration
 from picamcal import load_calibration
-from picamcal.batch import run_batch
+from picamcal.batch import BatchOptions, run_batch
 
 SIZE = (640, 480)  # big enough that the work lasts while the test looks for its temporaries
 FRAMES = 10
@@ -129,11 +129,12 @@ def data(tmp_path_factory) -> dict[str, Path]:
     frames.mkdir()
     for i in range(FRAMES):
         shutil.copyfile(refs["target"], frames / f"f{i:02d}.dng")
-    result = run_batch(root / "cal.npz", [frames], root / "reference", workers=0)
+    result = run_batch(root / "cal.npz", [frames], BatchOptions(out_dir=root / "reference", workers=0))
     assert len(result.done) == FRAMES
     return {"sim": root / "sim", "cal": root / "cal.npz", "frames": frames, "reference": root / "reference"}
 
 
+@pytest.mark.slow
 def test_killed_calibrate_leaves_no_file_and_the_rerun_cleans_up(data, tmp_path):
     out = tmp_path / "cal.npz"
     args = ("calibrate", str(data["sim"]), "--out", str(out), "--bin-size", "2")  # a 17 MB file: saving takes a while
@@ -156,6 +157,7 @@ def test_killed_calibrate_leaves_no_file_and_the_rerun_cleans_up(data, tmp_path)
     assert temporaries(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_killed_correct_with_workers_leaves_no_process_and_no_partial_file(data, tmp_path):
     out = tmp_path / "out"
     args = ("correct", str(data["cal"]), str(data["frames"]), "--out", str(out), "--workers", "2")
@@ -185,6 +187,7 @@ def test_killed_correct_with_workers_leaves_no_process_and_no_partial_file(data,
     }
 
 
+@pytest.mark.slow
 def test_killed_report_leaves_no_folder_and_the_rerun_cleans_up(data, tmp_path):
     out = tmp_path / "report"
     args = ("report", str(data["cal"]), "--out", str(out))
@@ -206,6 +209,7 @@ def test_killed_report_leaves_no_folder_and_the_rerun_cleans_up(data, tmp_path):
     assert temporaries(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_killed_zarr_batch_leaves_no_process_and_resumes(data, tmp_path):
     zarr = pytest.importorskip("zarr")
     stack = tmp_path / "frames.zarr"

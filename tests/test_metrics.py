@@ -349,6 +349,12 @@ def test_flatness_rejects_non_positive_mean():
         flatness(np.zeros((4, 4)))
 
 
+@pytest.mark.parametrize("bin_size", [0, 2.5, -4])
+def test_flatness_rejects_a_bin_size_that_is_not_a_whole_number_of_pixels(bin_size):
+    with pytest.raises(PicamcalError, match="bin size must be a whole number of pixels >= 1"):
+        flatness(np.ones((8, 8)), bin_size=bin_size)
+
+
 @settings(max_examples=50, deadline=None)
 @given(
     arrays(np.float64, (6, 5), elements=st.floats(0.1, 10.0)),

@@ -40,7 +40,7 @@ from picamcal.raw.picamera2 import to_picamera2, write_picamera2_npy
 from test_cli import assert_bad_input, run
 
 ROOT = Path(__file__).resolve().parents[1]
-TUNING = ROOT.parent / "shared" / "data" / "libcamera-tuning" / "pisp" / "imx219.json"
+TUNING = ROOT / "tests" / "data" / "libcamera-tuning" / "pisp" / "imx219.json"
 SUFFIXES = {
     "float32-tiff": ".tiff",
     "uint16-tiff": ".tiff",
@@ -297,6 +297,7 @@ def run_dir(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("output_format", OUTPUT_FORMATS)
 def test_correct_writes_each_format_skips_on_rerun_and_overwrites(run_dir, tmp_path, output_format):
     sim, out = run_dir / "sim", tmp_path / "out"
@@ -337,6 +338,7 @@ def test_correct_writes_each_format_skips_on_rerun_and_overwrites(run_dir, tmp_p
     assert (out / f"target{suffix}").read_bytes() == b"somebody else's file"
 
 
+@pytest.mark.slow
 def test_bad_output_combinations_are_one_line_and_write_nothing(run_dir, tmp_path):
     cal, target = str(run_dir / "cal.npz"), str(run_dir / "sim" / "target.dng")
     result = run("correct", cal, target, "--zarr", str(tmp_path / "s.zarr"), "--output-format", "srgb-png")
@@ -354,6 +356,7 @@ def test_bad_output_combinations_are_one_line_and_write_nothing(run_dir, tmp_pat
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_tuning_file_or_the_images_own_ccm_colours_the_srgb_output(run_dir, tmp_path):
     """The sRGB output is exactly the float32 output through the recorded matrix, for each matrix source."""
     cal = str(run_dir / "cal.npz")
@@ -389,6 +392,7 @@ def test_a_tuning_file_or_the_images_own_ccm_colours_the_srgb_output(run_dir, tm
         assert difference.max() <= 1 and (difference > 0).mean() < 1e-3
 
 
+@pytest.mark.slow
 def test_pure_mode_and_processed_inputs_are_encoded_without_a_matrix(run_dir, tmp_path):
     cal, target = str(run_dir / "cal.npz"), str(run_dir / "sim" / "target.dng")
     result = run("correct", cal, target, "--out", str(tmp_path / "pure"), "--mode", "pure",
@@ -398,17 +402,18 @@ def test_pure_mode_and_processed_inputs_are_encoded_without_a_matrix(run_dir, tm
     assert info["colour_matrix"] == np.eye(3).tolist() and "mode pure" in info["colour_matrix_source"]
     processed = tmp_path / "processed.png"
     Image.fromarray(np.full((240, 320, 3), 200, np.uint8)).save(processed)
-    result = run("correct", cal, str(processed), "--processed", "--mode", "balance", "--out", str(tmp_path / "p"),
+    result = run("correct", cal, str(processed), "--processed", "--mode", "uncorrected", "--out", str(tmp_path / "p"),
                  "--output-format", "srgb-png", "--workers", "0")  # fmt: skip
     assert result.returncode == 0, result.stderr
     info = provenance(tmp_path / "p" / "processed.png")
     assert info["colour_matrix"] == np.eye(3).tolist() and "processed" in info["colour_matrix_source"]
     assert info["input_encoding"] == "srgb"
-    # balance mode on a processed image changes nothing: sRGB 200 is linear 0.578, at 0.8 of it: code 181.
+    # uncorrected mode on a processed image changes nothing: sRGB 200 is linear 0.578, at 0.8 of it: code 181.
     assert np.asarray(Image.open(tmp_path / "p" / "processed.png"))[120, 160].tolist() == [181] * 3
 
 
 # ---------------------------------------------------------------------------------------------- docs
+@pytest.mark.slow
 def test_the_examples_in_docs_outputs_md_run(tmp_path, monkeypatch):
     text = (ROOT / "docs" / "outputs.md").read_text()
     monkeypatch.chdir(tmp_path)

@@ -31,6 +31,7 @@ def unchanged(root: Path, command: tuple[str, ...], *fragments: str) -> None:
     assert snapshot(root) == before
 
 
+@pytest.mark.slow
 def test_the_reported_data_losses_are_refused(setup):
     cal, captures, tuning = setup / "cal.npz", setup / "captures", setup / "tuning.json"
     target, white = captures / "target.dng", captures / "white.dng"
@@ -60,11 +61,13 @@ def test_the_reported_data_losses_are_refused(setup):
     ],
     ids=lambda c: " ".join(c[:1] + c[-2:]),
 )
+@pytest.mark.slow
 def test_no_output_is_holds_or_lies_inside_an_input(setup, command):
     names = {"root": setup, "captures": setup / "captures", "cal": setup / "cal.npz", "tuning": setup / "tuning.json"}
     unchanged(setup, tuple(part.format(**names) for part in command), "choose another")
 
 
+@pytest.mark.slow
 def test_overwrite_replaces_only_what_picamcal_wrote(setup, tmp_path):
     cal = str(setup / "cal.npz")
     notes = tmp_path / "notes"
@@ -83,6 +86,7 @@ def test_overwrite_replaces_only_what_picamcal_wrote(setup, tmp_path):
     unchanged(tmp_path, ("correct", cal, target, "--out", str(tmp_path / "out"), "--overwrite"), "picamcal wrote")
 
 
+@pytest.mark.slow
 def test_a_report_is_replaced_and_readable_by_others(setup, tmp_path):
     cal = str(setup / "cal.npz")
     report = tmp_path / "report"

@@ -627,6 +627,7 @@ def _check_image(raw):
     assert raw.white_level == 2**raw.bit_depth - 1 and int(raw.bayer.max()) <= raw.white_level
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(config=_configs(), metadata=st.one_of(st.none(), _metadata), data=st.data())
 def test_fuzz_from_picamera2_raises_only_raw_format_error(config, metadata, data):
@@ -700,6 +701,7 @@ def _sidecar_json(config, metadata, sensor) -> bytes:
         ),
     ),
 )
+@pytest.mark.slow
 def test_fuzz_read_picamera2_npy_raises_only_raw_format_error(tmp_path, npy, sidecar):
     path = tmp_path / "fuzz.npy"
     path.write_bytes(npy)

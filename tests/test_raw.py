@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 import rawpy
 
 from picamcal import RawFormatError, read_raw
-from picamcal.raw import PATTERNS, RawImage, write_dng, write_npz
+from picamcal.raw import PATTERNS, RAW_SUFFIXES, RawImage, write_dng, write_npz
 
 
 def _random_raw(pattern: str, bits: int = 10) -> RawImage:
@@ -156,3 +159,17 @@ def test_sensor_names_the_sensor_of_a_file_that_does_not(tmp_path):
     assert all(np.isnan(unknown.black_level))
     named = read_raw(write_npz(tmp_path / "named.npz", _random_raw("RGGB")), sensor="imx477")
     assert named.sensor == "imx219" and named.black_level == (64.0, 65.0, 66.0, 67.0)  # the file's own wins
+
+
+def test_each_format_recognises_only_its_own_files_and_the_docs_example_runs(tmp_path, monkeypatch, capsys):
+    # docs/formats.md, "Where each format lives": each module's signature test is true for its own file only.
+    text = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
+    section = text[text.index("## Where each format lives") :].split("\n## ", 1)[0]
+    (block,) = re.findall(r"```python\n(.*?)```", section, re.DOTALL)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(block, "docs/formats.md", "exec"), {})
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[:3] == ["frame.dng True False False", "frame.jpg False True False", "frame.npz False False True"]
+    assert printed[3] == str(RAW_SUFFIXES)
+    for name in ("frame.dng", "frame.jpg", "frame.npz"):
+        assert read_raw(tmp_path / name).metadata["format"] == {"dng": "dng", "jpg": "brcm", "npz": "npz"}[name[6:]]

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from picamcal import CalibrationInputError
-from picamcal.references import find_references, role_of
+from picamcal.manifest import AcquisitionError
+from picamcal.references import find_references, read_manifest, role_of
 
 
 @pytest.mark.parametrize(
@@ -53,11 +56,13 @@ def test_white_alone_is_a_flat_field_and_colours_come_all_or_none(tmp_path):
 
 
 def test_several_frames_of_a_role_are_a_list_in_natural_order(tmp_path):
-    for name in ("white_10.dng", "white_2.dng", "white_1.raw", "black.dng", "notes.txt", "white_3.txt"):
+    names = ("white_10.dng", "white_2.dng", "white_1.raw", "white_5.bin", "black.dng", "notes.txt", "white_3.txt")
+    for name in names:
         (tmp_path / name).write_bytes(b"x")
     (tmp_path / "white_4.dng").mkdir()  # a folder is not a frame, whatever its name
     found = find_references(tmp_path)
-    assert [p.name for p in found["white"]] == ["white_1.raw", "white_2.dng", "white_10.dng"]
+    # headless dumps (.raw, .bin) count: calibrate is told their sensor and size
+    assert [p.name for p in found["white"]] == ["white_1.raw", "white_2.dng", "white_5.bin", "white_10.dng"]
     assert found["black"].name == "black.dng"
 
 
@@ -67,3 +72,34 @@ def test_a_folder_without_a_white(tmp_path):
         find_references(tmp_path)
     with pytest.raises(CalibrationInputError, match="no such folder"):
         find_references(tmp_path / "missing")
+
+
+def manifest(entries: list[dict]) -> dict:
+    """A manifest as picamcal acquire writes it (the format in picamcal.manifest's docstring)."""
+    return {
+        "format": "picamcal-acquisition",
+        "version": 1,
+        "camera": {"kind": "sim", "sensor": "imx219", "size": [64, 48]},
+        "illuminator": {"kind": "sim"},
+        "settings": {"exposure_time_us": 4000, "analogue_gain": 1.0, "colour_gains": [1.8, 1.3]},
+        "roles": ["white", "red", "green", "blue", "black", "target"],
+        "entries": entries,
+    }
+
+
+def test_a_folder_with_a_manifest_is_read_through_it_not_by_names(tmp_path):
+    files = {"white": "a.dng", "red": "b.dng", "green": "c.dng", "blue": "d.dng", "target": "e.dng"}
+    for name in (*files.values(), "black.dng"):  # black.dng is not in the manifest: not captured by this run
+        (tmp_path / name).write_bytes(b"x")
+    entries = [{"role": role, "file": name} for role, name in files.items()]
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest(entries)))
+    expected = {"white": "a.dng", "red": "b.dng", "green": "c.dng", "blue": "d.dng"}
+    assert {role: path.name for role, path in find_references(tmp_path).items()} == expected
+    assert read_manifest(tmp_path, extras=True)["target"] == tmp_path / "e.dng"
+
+
+def test_a_manifest_without_the_colours_yet_is_an_incomplete_run(tmp_path):
+    (tmp_path / "white.dng").write_bytes(b"x")
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest([{"role": "white", "file": "white.dng"}])))
+    with pytest.raises(AcquisitionError, match=r"incomplete \(no red, green, blue yet\): run picamcal acquire again"):
+        find_references(tmp_path)

@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import json
 import math
-import time
 
 import numpy as np
 import pytest
 from scipy.special import ndtr
 
 from picamcal.bayer import bin_sites, sites_to_channels
+from picamcal.colour_wheel import WHEEL_POSITIONS
 from picamcal.errors import OutputError, PicamcalError
 from picamcal.raw import PATTERNS, read_raw, site_channels
+from picamcal.references import ROLES
 from picamcal.simulate import (
-    REFERENCES,
     Optics,
     dust_specks,
     expected_response,
@@ -27,6 +27,7 @@ from picamcal.simulate import (
     wheel_layout,
     wheel_scene,
 )
+from picamcal.target import target_layout
 
 CORNERS = ((0, 0), (0, -1), (-1, 0), (-1, -1))
 
@@ -300,7 +301,7 @@ def test_references_carry_dust_on_the_white_only():
     refs = simulate_references(camera, noise=False, dust=4, seed=2)
     specks = refs["white"].metadata["dust"]
     assert specks == dust_specks(camera, 4, rng=np.random.default_rng(np.random.SeedSequence(2, spawn_key=(5,))))
-    assert len(specks) == 4 and all("dust" not in refs[n].metadata for n in REFERENCES[1:])
+    assert len(specks) == 4 and all("dust" not in refs[n].metadata for n in ROLES[1:])
     expected = expected_response(camera, "white")
     white = refs["white"].black_subtracted()
     for s in specks:
@@ -316,7 +317,7 @@ def test_references_are_reproducible_and_independent():
     a = simulate_references(camera, seed=4)
     b = simulate_references(camera, seed=4)
     c = simulate_references(camera, seed=5)
-    for name in REFERENCES:
+    for name in ROLES:
         np.testing.assert_array_equal(a[name].bayer, b[name].bayer)
         assert not np.array_equal(a[name].bayer, c[name].bayer)
     # Each frame has its own noise stream: the black frame's noise is not the white's.
@@ -325,17 +326,22 @@ def test_references_are_reproducible_and_independent():
     assert abs(np.corrcoef(noise_black, noise_white)[0, 1]) < 0.1
 
 
-def test_wheel_layout_record():
+def test_the_simulated_target_is_the_printable_target_laid_out_on_the_frame():
     layout = wheel_layout(640, 480)
+    assert layout == target_layout(640, 480)  # one target: what `picamcal target --size 640x480` writes
     assert json.loads(json.dumps(layout)) == layout
     assert [s["name"] for s in layout["segments"]] == ["red", "yellow", "green", "cyan", "blue", "magenta"]
     assert [s["colour"] for s in layout["segments"]][1] == [1, 1, 0]
     assert [(s["start_deg"], s["end_deg"]) for s in layout["segments"]][-1] == (300, 360)
     wheels = {w["name"]: w for w in layout["wheels"]}
-    assert list(wheels) == ["centre", "top-left", "top-right", "bottom-left", "bottom-right"]
+    assert list(wheels) == [name for name, _, _ in WHEEL_POSITIONS]
     assert (wheels["centre"]["x"], wheels["centre"]["y"]) == (319.5, 239.5)
-    assert (wheels["bottom-right"]["x"], wheels["bottom-right"]["y"]) == (543.5, 407.5)
-    assert all(w["radius"] == pytest.approx(0.11 * 480) for w in wheels.values())
+    # 15 % of the width from the right edge; max(15 % of the height, 17 % of the short side) from the bottom.
+    assert (wheels["bottom-right"]["x"], wheels["bottom-right"]["y"]) == (543.5, 397.9)
+    assert all(w["radius"] == pytest.approx(0.10 * 480) for w in wheels.values())
+    assert sorted(f["kind"] for f in layout["fiducials"]) == ["disc", "ring", "ring", "ring", "ring"]
+    # The simulator lays the target out on frames too small to print it on.
+    assert len(wheel_layout(64, 48)["wheels"]) == 9
 
 
 def test_wheel_scene_colours_angles_and_areas():
@@ -349,33 +355,44 @@ def test_wheel_scene_colours_angles_and_areas():
             angle = math.radians(seg["start_deg"] + 30)
             x, y = round(cx + 0.6 * r * math.cos(angle)), round(cy - 0.6 * r * math.sin(angle))
             assert scene[y, x].tolist() == seg["colour"]
-        # Half of the segments lack each primary: the missing amount is half the disc's area. Anti-aliasing
-        # makes the sum exact to well below the ~2 pixel^2 per rim pixel of a jagged edge (0.1 %).
+        # Half of the segments lack each primary: the missing amount is half the disc's area. The 4 x 4 samples
+        # of an edge pixel place an edge to 1/8 pixel: a boundary along a pixel row (the 0 and 180 degree rays of
+        # a wheel centred 0.1 pixel off a row, as the outer ones are here) is off by up to 1/8 pixel^2 per pixel
+        # of its 2 r length, r / 4 in all (0.3 %; measured 0.27 %); the curved rim's errors average out (0.01 %).
         block = scene[round(cy - r) - 2 : round(cy + r) + 3, round(cx - r) - 2 : round(cx + r) + 3]
         deficit = (1 - block).sum(axis=(0, 1))
-        np.testing.assert_allclose(deficit, math.pi * r**2 / 2, rtol=1e-3)
+        np.testing.assert_allclose(deficit, math.pi * r**2 / 2, rtol=0, atol=r / 4)
+    for mark in layout["fiducials"]:
+        # A black ring (disc) on white: the missing amount is its area in every primary, to 1/32 pixel^2 per
+        # pixel of its curved edges (measured 0.004).
+        cx, cy, r, hole = mark["x"], mark["y"], mark["radius"], mark.get("hole_radius", 0.0)
+        block = scene[round(cy - r) - 2 : round(cy + r) + 3, round(cx - r) - 2 : round(cx + r) + 3]
+        deficit = (1 - block).sum(axis=(0, 1))
+        np.testing.assert_allclose(deficit, math.pi * (r**2 - hole**2), rtol=0, atol=2 * math.pi * (r + hole) / 32)
+        assert scene[round(cy), round(cx)].tolist() == ([1.0] * 3 if hole else [0.0] * 3)
     assert np.all(scene[:5, :5] == 1)
-    edge = scene[239, 319 + round(layout["wheels"][0]["radius"])]  # on the rim, in the magenta/red split
-    assert 0 < edge[1] < 1
+    top = layout["wheels"][2]
+    assert top["name"] == "top"
+    edge = scene[round(top["y"] + top["radius"]), round(top["x"])]  # the pixel the blue segment's rim crosses
+    assert 0 < edge[1] < 1 and edge[2] == 1
 
 
-def test_full_size_imx219_target_renders_quickly():
+@pytest.mark.slow
+def test_full_size_imx219_target_renders_the_whole_frame():
+    # No timing bound (the project's rule): about 2.5 s on two cores, the figure in the simulator's docstring.
     camera = make_camera("imx219")
-    start = time.perf_counter()
     raw, layout = simulate_target(camera, seed=1)
-    elapsed = time.perf_counter() - start
     assert raw.bayer.shape == (2464, 3280) and raw.bayer.dtype == np.uint16
     assert (layout["width"], layout["height"]) == (3280, 2464)
+    assert layout == wheel_layout(3280, 2464)
     assert raw.pattern == "BGGR"
-    # About 2 s on two cores (scene, light spread and noise); the bound leaves room for a loaded machine.
-    assert elapsed < 10
 
 
 @pytest.mark.parametrize("fmt", ["dng", "npz"])
 def test_simulate_run_writes_files_that_read_back_bit_exactly(tmp_path, fmt):
     paths = simulate_run(tmp_path / "run", size=(320, 240), seed=7, dust=2, fmt=fmt, pattern="GRBG", tilt=(1, 0))
     assert {p.name for p in paths.values()} == {
-        *(f"{n}.{fmt}" for n in (*REFERENCES, "target")),
+        *(f"{n}.{fmt}" for n in (*ROLES, "target")),
         "layout.json",
         "truth.npz",
         "truth.json",
@@ -420,7 +437,7 @@ def test_simulate_run_refuses_to_overwrite(tmp_path):
     assert (tmp_path / "white.npz").stat().st_mtime_ns == before
     simulate_run(tmp_path, size=(64, 48), fmt="npz", overwrite=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        [f"{n}.npz" for n in (*REFERENCES, "target")] + ["layout.json", "truth.json", "truth.npz"]
+        [f"{n}.npz" for n in (*ROLES, "target")] + ["layout.json", "truth.json", "truth.npz"]
     )
 
 

@@ -18,12 +18,14 @@ from .errors import (
     PicamcalWarning,
     RawFormatError,
 )
+from .modes import Mode
 from .raw import RawImage, from_picamera2, read_raw, write_brcm, write_dng, write_npz
 
 __all__ = [
     "Calibration",
     "CalibrationFileError",
     "CalibrationInputError",
+    "Mode",
     "OutputError",
     "PicamcalError",
     "PicamcalWarning",

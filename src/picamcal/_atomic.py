@@ -47,8 +47,8 @@ def temporary_name(target: str | os.PathLike[str], suffix: str | None = None) ->
 
     Examples
     --------
-    >>> temporary_name("out/cal.npz").name  # doctest: +SKIP
-    '.cal.picamcal-3fa4c2e1-4123-9b0c77d2.tmp.npz'
+    >>> temporary_name("out/cal.npz").name
+    '.cal.picamcal-...tmp.npz'
     """
     target = Path(target)
     suffix, stem = _suffix_and_stem(target, suffix)
@@ -76,7 +76,9 @@ def make_temporary(target: str | os.PathLike[str], *, folder: bool = False, suff
 
     Examples
     --------
-    >>> build = make_temporary("report", folder=True)  # doctest: +SKIP
+    >>> build = make_temporary("report", folder=True)
+    >>> build.is_dir(), build.name.startswith(".report.picamcal-")
+    (True, True)
     """
     for _ in range(100):  # a clash of 32 random bits with this process's own names: try another
         path = temporary_name(target, suffix)
@@ -101,10 +103,13 @@ def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
 
     Examples
     --------
-    >>> remove_stale_temporaries("corrected")  # doctest: +SKIP
-    [PosixPath('corrected/.f07.picamcal-3fa4c2e1-4123-9b0c77d2.tmp.tiff')]
+    >>> Path("corrected").mkdir()
+    >>> stale = Path("corrected") / f".f07.picamcal-{_host_tag()}-999999999-9b0c77d2.tmp.tiff"  # no such process
+    >>> stale.touch()
+    >>> remove_stale_temporaries("corrected") == [stale], stale.exists()
+    (True, False)
     """
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(os.scandir(folder))
     except OSError:
@@ -134,8 +139,11 @@ def has_live_temporary(target: str | os.PathLike[str], suffix: str | None = None
 
     Examples
     --------
-    >>> has_live_temporary("run1.zarr", ".writing")  # doctest: +SKIP
+    >>> has_live_temporary("run1.zarr", ".writing")
     False
+    >>> marker = make_temporary("run1.zarr", suffix=".writing")
+    >>> has_live_temporary("run1.zarr", ".writing")
+    True
     """
     target = Path(target)
     suffix, stem = _suffix_and_stem(target, suffix)
@@ -152,7 +160,7 @@ def has_live_temporary(target: str | os.PathLike[str], suffix: str | None = None
 
 def _is_stale(name: str) -> bool:
     match = _TEMPORARY.match(name)
-    return bool(match) and match["host"] == _host_tag() and not _process_alive(int(match["pid"]))
+    return match is not None and match["host"] == _host_tag() and not _process_alive(int(match["pid"]))
 
 
 def _process_alive(pid: int) -> bool:
@@ -182,8 +190,10 @@ def atomic_path(path: str | os.PathLike[str], overwrite: bool = True) -> Iterato
 
     Examples
     --------
-    >>> with atomic_path("notes.txt") as tmp:  # doctest: +SKIP
-    ...     tmp.write_text("complete or absent")
+    >>> with atomic_path("notes.txt") as tmp:
+    ...     _ = tmp.write_text("complete or absent")
+    >>> Path("notes.txt").read_text()
+    'complete or absent'
     """
     target = Path(path)
     if not overwrite and target.exists():

@@ -9,11 +9,13 @@ import numpy as np
 
 try:
     from numba import njit, prange
+
+    _HAS_NUMBA = True
 except ImportError:  # pragma: no cover - exercised where numba is absent
-    njit = None
+    _HAS_NUMBA = False
 
 
-if njit is not None:
+if _HAS_NUMBA:
 
     @njit(parallel=True, cache=True)
     def _site_sums(mosaic: np.ndarray, bin_size: int, nby: int, nbx: int) -> np.ndarray:  # pragma: no cover
@@ -29,6 +31,6 @@ if njit is not None:
 
 def site_sums(mosaic: np.ndarray, bin_size: int, nby: int, nbx: int) -> np.ndarray | None:
     """Per-bin, per-site sums of a mosaic in one pass, or None when numba is not installed."""
-    if njit is None:
+    if not _HAS_NUMBA:
         return None
     return _site_sums(np.ascontiguousarray(mosaic), bin_size, nby, nbx)

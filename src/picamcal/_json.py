@@ -45,7 +45,8 @@ def read_json(
 
     Examples
     --------
-    >>> read_json("layout.json", PicamcalError, "a target layout")["width"]  # doctest: +SKIP
+    >>> _ = Path("layout.json").write_text('{"width": 1920, "wheels": []}')
+    >>> read_json("layout.json", PicamcalError, "a target layout")["width"]
     1920
     """
     size = require_regular_file(path, error)
@@ -214,4 +215,5 @@ def _describe(value: Any) -> str:
         return repr(value)
     if isinstance(value, str):
         return f"the string {value[:40]!r}"
-    return {list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
+    kinds: dict[type, str] = {list: "a list", dict: "an object"}
+    return kinds.get(type(value), type(value).__name__)

@@ -128,17 +128,8 @@ def bin_sites(mosaic: np.ndarray, bin_size: int) -> np.ndarray:
             rows = np.diff(np.append(np.arange(0, height, bin_size), height)) // 2
             cols = np.diff(np.append(np.arange(0, width, bin_size), width)) // 2
             return sums / np.outer(rows, cols)[..., None]
-    half = bin_size // 2
-    out = []
-    for sy in (0, 1):
-        for sx in (0, 1):
-            plane = mosaic[sy::2, sx::2]
-            ry = np.arange(0, plane.shape[0], half)
-            rx = np.arange(0, plane.shape[1], half)
-            sums = np.add.reduceat(np.add.reduceat(plane, ry, axis=0, dtype=np.float64), rx, axis=1)
-            counts = np.outer(np.diff(np.append(ry, plane.shape[0])), np.diff(np.append(rx, plane.shape[1])))
-            out.append(sums / counts)
-    return np.stack(out, axis=-1)
+    # Without numba: a bin of bin_size sensor pixels is a block of bin_size / 2 pixels of each site's plane.
+    return np.stack([block_mean(mosaic[sy::2, sx::2], bin_size // 2) for sy in (0, 1) for sx in (0, 1)], axis=-1)
 
 
 def sites_to_channels(sites: np.ndarray, pattern: str) -> np.ndarray:

@@ -15,32 +15,35 @@ same scene; their bin means are averaged, and their temporal noise is measured a
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import warnings
 from collections.abc import Iterable
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
 
 from ._version import __version__
-from .bayer import bin_sites, sites_to_channels
+from .bayer import bin_sites, centre_region, sites_to_channels
 from .calibration import Calibration
 from .errors import CalibrationFileError, CalibrationInputError, PicamcalWarning
 from .raw import RawImage, read_raw
 from .raw.model import require_black_level
 from .records import sha256_file
+from .references import COLOURS
 
-REFERENCE_ROLES = ("white", "red", "green", "blue", "black")
 #: Fraction of clipped white pixels above which the white is refused.
 MAX_CLIPPED_FRACTION = 1e-4
-#: The white's median must use at least this fraction of the range between black and white level.
-MIN_WHITE_FRACTION = 0.05
-#: Bins whose crosstalk matrix has a larger (Frobenius) condition number are not trusted.
-MAX_CONDITION = 100.0
+#: The white's median must use at least this fraction of the range between black and white level, or calibrate
+#: refuses it (:func:`picamcal.analysis.diagnostics.check_exposure` warns from a higher level).
+REFUSE_WHITE_FRACTION = 0.05
+#: Bins whose crosstalk matrix has a larger (Frobenius) condition number are not trusted: filled from their
+#: neighbours, and the calibration refused when more than a quarter are (the diagnostics warn from a lower one).
+REFUSE_CONDITION = 100.0
 #: The largest smoothing, as a fraction of the bin grid's shorter side (see :func:`check_smoothing`).
 MAX_SMOOTHING_FRACTION = 0.25
 
@@ -103,19 +106,6 @@ def invert_3x3(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return adjugate.T.reshape(shape), det.reshape(shape[:-2])
 
 
-def centre_region(nby: int, nbx: int) -> tuple[int, int, int, int]:
-    """Bin index range (y0, y1, x0, x1) of the central ninth of the frame (middle third in each axis).
-
-    The paper's 2019 code took rows 4/9 to the bottom edge; this is the central ninth it meant.
-
-    Examples
-    --------
-    >>> centre_region(154, 205)
-    (51, 102, 68, 136)
-    """
-    return nby // 3, max(2 * nby // 3, nby // 3 + 1), nbx // 3, max(2 * nbx // 3, nbx // 3 + 1)
-
-
 def crosstalk_matrices(site_responses: np.ndarray, pattern: str) -> np.ndarray:
     """White-normalised crosstalk matrices M(b), shape (nby, nbx, 3, 3), with ``M(b) @ (1, 1, 1) = 1``.
 
@@ -129,6 +119,13 @@ def crosstalk_matrices(site_responses: np.ndarray, pattern: str) -> np.ndarray:
         Black-subtracted bin means of the white, red, green and blue references per Bayer site.
     pattern : str
         Bayer pattern.
+
+    Examples
+    --------
+    >>> white = np.ones((1, 1, 4))
+    >>> red, green, blue = (np.array([a, b, b, c], float).reshape(1, 1, 4) for a, b, c in np.eye(3))
+    >>> crosstalk_matrices(np.stack([white, red, green, blue]), "RGGB")[0, 0].tolist()  # no crosstalk: identity
+    [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     """
     white = site_responses[0]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -140,14 +137,14 @@ def crosstalk_matrices(site_responses: np.ndarray, pattern: str) -> np.ndarray:
     return m * amounts[..., None, :]
 
 
-@dataclass
+@dataclasses.dataclass
 class _Reference:
     """One reference role after loading: its first frame, its bin means averaged over its frames, its record."""
 
     role: str
     raw: RawImage  # the first frame: geometry, levels and the name in messages
     sites: np.ndarray  # per-site bin means averaged over the frames, before black subtraction (nby, nbx, 4)
-    info: dict  # its entry in meta["inputs"]
+    info: dict  # its entry in the calibration's inputs
 
 
 def _frames(ref: Frames) -> Iterable[RawLike]:
@@ -242,7 +239,9 @@ def _load_reference(
     (of each frame minus the first, and its square) are held, whatever the number of frames.
     """
     first: RawImage | None = None
-    total = sums = squares = None
+    total: np.ndarray | None = None
+    sums: np.ndarray | None = None  # of each frame after the first minus the first, and of its square
+    squares: np.ndarray | None = None
     records: list[dict] = []
     for index, item in enumerate(_frames(ref)):
         raw = item if isinstance(item, RawImage) else read_raw(item)
@@ -269,7 +268,7 @@ def _load_reference(
         total = sites if total is None else total + sites
         if raw is not first:
             difference = raw.bayer.astype(np.float32) - first.bayer
-            if sums is None:
+            if sums is None or squares is None:
                 sums, squares = difference, difference * difference
             else:
                 sums += difference
@@ -277,11 +276,11 @@ def _load_reference(
         record = _frame_record(raw, f"<{role} array {index + 1}>")
         record.update(format=raw.metadata.get("format", "array"), clipped_fraction=clipped / raw.bayer.size)
         records.append(record)
-    if first is None:
+    if first is None or total is None:
         raise CalibrationInputError(f"no frames given for the {role} reference")
     count = len(records)
     info: dict = {"role": role, "format": records[0]["format"]}
-    if count == 1:
+    if sums is None or squares is None:  # one frame
         info.update(records[0])
         if "sha256" not in info:
             info["name"] = f"<{role} array>"
@@ -321,20 +320,20 @@ def calibrate(
 
     With red, green and blue references the calibration is ``full`` (every correction mode); with the
     white alone (and optionally a dark frame) it is a ``flat`` calibration: the flat field and colour
-    balance, for modes ``balance`` and ``flat``, the lens shading exports and the report.
+    balance, for modes ``uncorrected`` and ``flat``, the lens shading exports and the report.
 
     Parameters
     ----------
     white : RawImage or path, or a sequence of them
         Raw image of the bare sensor (or of the optics: a bright-field microscope with the sample removed, a
         diffuser in front of the lens) under uniform white light. Several frames of one role are checked
-        one by one and averaged; their temporal noise is recorded in ``meta["inputs"]``.
+        one by one and averaged; their temporal noise is recorded in its ``inputs``.
     red, green, blue : RawImage or path, or a sequence of them, optional
         The same under uniform red, green and blue light: all three, or none for a flat calibration. Take
         every reference with the same frozen exposure, gains and white balance.
     black : RawImage or path, or a sequence of them, optional
         A dark frame at the same settings; subtracted bin by bin, and its per-site median becomes the
-        calibration's black level (``meta["black_level_source"] == "dark frame"``), so references and
+        calibration's black level (``black_level_source == "dark frame"``), so references and
         images whose black level is unknown (NaN) can be used. Without it each file's black level is used.
     bin_size : int
         Bin edge in sensor pixels (even); the paper uses 16.
@@ -360,21 +359,25 @@ def calibrate(
     -----
     PicamcalWarning
         Some bins are ill-conditioned; they are filled from their nearest good neighbours and
-        counted in ``meta["ill_conditioned_bins"]``.
+        counted in its ``ill_conditioned_bins``.
 
     Examples
     --------
-    >>> import picamcal
-    >>> cal = picamcal.calibrate("white.dng", "red.dng", "green.dng", "blue.dng", "black.dng")  # doctest: +SKIP
-    >>> cal.unmixing[77, 102].round(3)  # the identity at the centre  # doctest: +SKIP
-    >>> flat = picamcal.calibrate(["white_1.dng", "white_2.dng"], black="black.dng")  # doctest: +SKIP
-    >>> flat.kind, flat.modes  # doctest: +SKIP
-    ('flat', ('balance', 'flat'))
+    >>> from picamcal.simulate import make_camera, render, simulate_references
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> refs = simulate_references(camera, seed=1)  # white, red, green, blue and black RawImages
+    >>> cal = calibrate(refs["white"], refs["red"], refs["green"], refs["blue"], refs["black"])
+    >>> centre = cal.unmixing[cal.centre_slices].mean(axis=(0, 1))
+    >>> cal.kind, cal.unmixing.shape, bool(np.allclose(centre, np.eye(3), atol=1e-3))  # U is I at the centre
+    ('full', (15, 20, 3, 3), True)
+    >>> flat = calibrate([render(camera, "white", rng=k) for k in (1, 2)], black=refs["black"])  # two white frames
+    >>> flat.kind, [mode.value for mode in flat.modes], flat.inputs[0]["frame_count"]
+    ('flat', ['uncorrected', 'flat'], 2)
     """
     if bin_size < 2 or bin_size % 2:
         raise CalibrationInputError(f"bin size must be an even number of pixels >= 2, got {bin_size}")
     check_smoothing(smoothing)
-    colours = {"red": red, "green": green, "blue": blue}
+    colours = dict(zip(COLOURS, (red, green, blue), strict=True))
     missing = [role for role, ref in colours.items() if ref is None]
     if 0 < len(missing) < 3:
         raise CalibrationInputError(
@@ -385,8 +388,12 @@ def calibrate(
     refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, bin_size, smoothing)
     site_responses, black_level = _binned_responses(refs, black is not None, smoothing)
     arrays = _derive(site_responses, refs[0].raw.pattern, refs[1].raw.source if len(site_responses) > 1 else "")
-    infos = [r.info for r in refs]
-    return Calibration(arrays, _meta(refs, infos, bin_size, smoothing, black_level, arrays))
+    return Calibration(
+        kind="full" if "unmixing" in arrays else "flat",
+        **_record(refs, bin_size, smoothing, black_level),
+        provenance=_provenance(refs, [r.info for r in refs]),
+        **arrays,
+    )
 
 
 def calibrate_in_situ(
@@ -400,9 +407,10 @@ def calibrate_in_situ(
 
     The paper's recommended compromise: the white reference is specific to each optical system and easy
     to take in situ (a bright-field microscope with the sample removed), while the colour crosstalk is a
-    property of the sensor under near-normal incidence, measured once in the calibration jig. The jig's
-    colour responses, normalised by its white, are kept exactly, so its crosstalk matrices ``M`` and
-    unmixing field ``U`` carry over; the flat field (``W``, ``LST``, ``Cb``) is the new white's.
+    property of the sensor under near-normal incidence, measured once in the calibration jig. The result is
+    the jig's calibration with the new white's flat field (``W``, ``LST``, ``Cb``), levels and provenance
+    (``dataclasses.replace``): its crosstalk matrices ``M`` and unmixing field ``U`` carry over unchanged, and
+    its colour responses, normalised by its white, are kept exactly in ``site_responses``.
 
     Parameters
     ----------
@@ -418,8 +426,13 @@ def calibrate_in_situ(
 
     Examples
     --------
-    >>> jig = picamcal.load_calibration("jig.npz")  # doctest: +SKIP
-    >>> cal = calibrate_in_situ("microscope_white.dng", jig)  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, render, simulate_references
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> jig = calibrate(**simulate_references(camera, seed=1))
+    >>> microscope_white = render(camera, (0.8, 0.8, 0.8), rng=5)  # a white through other optics
+    >>> cal = calibrate_in_situ(microscope_white, jig)
+    >>> cal.unmixing is jig.unmixing, [i["role"] for i in cal.inputs]
+    (True, ['white', 'unmixing'])
     """
     from .calibration import load_calibration
 
@@ -449,14 +462,18 @@ def calibrate_in_situ(
     jig_responses = jig.site_responses.astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         colours = jig_responses[1:] / jig_responses[0] * new_white
-    site_responses = np.concatenate([new_white[None], colours])
-    arrays = _derive(site_responses, first.pattern, first.source)
-    info = {"role": "unmixing", "format": "picamcal-calibration", "created": jig.meta.get("created")}
+    info = {"role": "unmixing", "format": "picamcal-calibration", "created": jig.provenance.get("created")}
     if not isinstance(unmixing_from, Calibration):
         info.update(name=Path(unmixing_from).name, sha256=sha256_file(Path(unmixing_from)))
-    meta = _meta(refs, [*(r.info for r in refs), info], jig.bin_size, smoothing, black_level, arrays)
-    meta["in_situ"] = {"unmixing_from": info, "jig_inputs": [i.get("name") for i in jig.meta.get("inputs", [])]}
-    return Calibration(arrays, meta)
+    provenance = _provenance(refs, [*(r.info for r in refs), info])
+    provenance["in_situ"] = {"unmixing_from": info, "jig_inputs": [i.get("name") for i in jig.inputs]}
+    return dataclasses.replace(
+        jig,
+        **_record(refs, jig.bin_size, smoothing, black_level),
+        provenance=provenance,
+        site_responses=np.concatenate([new_white[None], colours]).astype(np.float32),
+        **_flat_field(new_white, first.pattern),
+    )
 
 
 def _load_all(named: dict[str, Frames], bin_size: int, smoothing: float) -> list[_Reference]:
@@ -469,7 +486,7 @@ def _load_all(named: dict[str, Frames], bin_size: int, smoothing: float) -> list
 
 def _binned_responses(
     refs: list[_Reference], has_black: bool, smoothing: float
-) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+) -> tuple[np.ndarray, tuple[float, ...]]:
     """Black-subtracted per-site bin means of every reference but the black, white first (n, nby, nbx, 4).
 
     The black is the dark frame's bins when there is one (then the references' own black levels may be
@@ -506,10 +523,10 @@ def _binned_responses(
     signal = float(np.median(refs[0].sites - black_sites[0]))
     if signal <= 0:
         raise CalibrationInputError("white reference is not brighter than black", white.source)
-    if signal < MIN_WHITE_FRACTION * usable:
+    if signal < REFUSE_WHITE_FRACTION * usable:
         raise CalibrationInputError(
             f"white reference is too dark: median signal {signal:.1f} DN is {100 * signal / usable:.1f} % of the range "
-            f"(at least {100 * MIN_WHITE_FRACTION:.0f} % needed); increase the exposure or the light",
+            f"(at least {100 * REFUSE_WHITE_FRACTION:.0f} % needed); increase the exposure or the light",
             white.source,
         )
     site_responses = np.stack([ref.sites - below for ref, below in zip(lights, black_sites, strict=True)])
@@ -523,7 +540,7 @@ def _binned_responses(
     return site_responses, black_level
 
 
-def _flat_field(site_white: np.ndarray, pattern: str) -> dict[str, np.ndarray]:
+def _flat_field(site_white: np.ndarray, pattern: str) -> dict[str, Any]:
     """The flat-field arrays of either kind: ``W`` per site and channel, ``LST`` and ``Cb`` (paper, Cb LST = 1 / W)."""
     channel_white = sites_to_channels(site_white, pattern)
     peak = channel_white.reshape(-1, 3).max(axis=0)
@@ -535,9 +552,9 @@ def _flat_field(site_white: np.ndarray, pattern: str) -> dict[str, np.ndarray]:
     }
 
 
-def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dict[str, np.ndarray]:
-    """Every field of the calibration from the binned responses: of the white alone (a flat calibration), or of
-    the white, red, green and blue references (a full one)."""
+def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dict[str, Any]:
+    """Every array of the calibration by name, from the binned responses: of the white alone (a flat calibration),
+    or of the white, red, green and blue references (a full one)."""
     arrays = {"site_responses": site_responses.astype(np.float32), **_flat_field(site_responses[0], pattern)}
     if len(site_responses) == 1:
         return arrays
@@ -545,19 +562,19 @@ def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dic
     m = crosstalk_matrices(site_responses, pattern).astype(np.float32)
     pure, _ = invert_3x3(m)
     condition = np.sqrt((m**2).sum(axis=(-1, -2)) * (pure**2).sum(axis=(-1, -2)))
-    bad = ~np.isfinite(condition) | (condition > MAX_CONDITION) | ~np.isfinite(m).all(axis=(-1, -2))
+    bad = ~np.isfinite(condition) | (condition > REFUSE_CONDITION) | ~np.isfinite(m).all(axis=(-1, -2))
     nbad = int(np.count_nonzero(bad))
     if nbad > 0.25 * bad.size:
         raise CalibrationInputError(
             f"the red, green and blue references do not separate the colours: {nbad} of {bad.size} bins have an "
-            f"ill-conditioned crosstalk matrix (condition > {MAX_CONDITION:g}); check the illumination colours and the "
-            "Bayer order (--pattern)",
+            f"ill-conditioned crosstalk matrix (condition > {REFUSE_CONDITION:g}); check the illumination colours "
+            "and the Bayer order (--pattern)",
             colour_source,
         )
     if nbad:
         ys, xs = np.nonzero(bad)
         warnings.warn(
-            f"{nbad} of {bad.size} bins have an ill-conditioned crosstalk matrix (condition > {MAX_CONDITION:g}), "
+            f"{nbad} of {bad.size} bins have an ill-conditioned crosstalk matrix (condition > {REFUSE_CONDITION:g}), "
             f"in bins y {ys.min()}..{ys.max()}, x {xs.min()}..{xs.max()}; filled from their nearest good neighbours",
             PicamcalWarning,
             stacklevel=3,
@@ -581,35 +598,29 @@ def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dic
     }
 
 
-def _meta(
-    refs: list[_Reference],
-    infos: list[dict],
-    bin_size: int,
-    smoothing: float,
-    black_level: tuple[float, float, float, float],
-    arrays: dict,
-) -> dict:
+def _record(refs: list[_Reference], bin_size: int, smoothing: float, black_level: tuple[float, ...]) -> dict[str, Any]:
+    """The calibration's record fields (geometry and levels) from its references, the white first."""
     first = refs[0].raw
-    nby, nbx = arrays["white"].shape[:2]
-    has_black = refs[-1].role == "black"
-    meta = {
-        "kind": "full" if "unmixing" in arrays else "flat",
-        "software_version": __version__,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    return {
         "sensor": next((r.raw.sensor for r in refs if r.raw.sensor), None),
         "pattern": first.pattern,
         "width": first.width,
         "height": first.height,
         "bin_size": bin_size,
-        "black_level": [round(float(v), 4) for v in black_level],
-        "black_level_source": "dark frame" if has_black else "references",
-        "black_frame": has_black,
+        "centre_region": centre_region(-(-first.height // bin_size), -(-first.width // bin_size)),
+        "black_level": tuple(round(float(v), 4) for v in black_level),
+        "black_level_source": "dark frame" if refs[-1].role == "black" else "references",
         "white_level": first.white_level,
         "bit_depth": first.bit_depth,
         "smoothing": smoothing,
-        "centre_region": list(centre_region(nby, nbx)),
-        "inputs": infos,
     }
-    if "ill_conditioned" in arrays:
-        meta["ill_conditioned_bins"] = int(np.count_nonzero(arrays["ill_conditioned"]))
-    return meta
+
+
+def _provenance(refs: list[_Reference], inputs: list[dict]) -> dict[str, Any]:
+    """Where the calibration came from: its inputs, when and by which picamcal, and whether a dark frame was used."""
+    return {
+        "software_version": __version__,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "black_frame": refs[-1].role == "black",
+        "inputs": inputs,
+    }

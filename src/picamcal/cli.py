@@ -26,6 +26,7 @@ from rich.text import Text
 from ._atomic import atomic_path, refuse_foreign, refuse_inputs_as_output
 from ._version import __version__
 from .errors import OutputError, PicamcalError, PicamcalWarning, closest
+from .modes import MODE_NAMES, Mode, parse_mode
 
 app = typer.Typer(
     help="Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics.",
@@ -34,7 +35,7 @@ app = typer.Typer(
     add_completion=False,
 )
 console = Console(stderr=True)
-MODE_HELP = "balance (colour balance only), flat (vignetting), centre (unmix to the centre's colours), pure"
+MODE_HELP = "; ".join(f"{mode.value}: {mode.description}" for mode in Mode)
 PatternOption = Annotated[
     str | None, typer.Option("--pattern", help="Override the files' Bayer order (RGGB, GBRG, BGGR, GRBG).")
 ]
@@ -140,6 +141,14 @@ def _choice(value: str, choices: Sequence[str], option: str) -> str:
     near = closest(value, choices)
     hint = f"; did you mean {near}?" if near else ""
     raise typer.BadParameter(f"{value!r} is not one of {', '.join(choices)}{hint}", param_hint=option)
+
+
+def _mode(value: str) -> str:
+    """``--mode`` as a mode's name; an old name (balance) is accepted with a warning."""
+    try:
+        return parse_mode(value.lower()).value
+    except ValueError:
+        return _choice(value, MODE_NAMES, "--mode")  # not a mode: the usage error, with "did you mean"
 
 
 def _read_options(
@@ -250,7 +259,7 @@ def calibrate_cmd(
     """Measure the flat field, and with red, green and blue references the colour-unmixing field.
 
     With a white alone (and optionally a dark frame) the calibration is a flat field: vignetting and colour
-    balance, for correct --mode balance|flat, export-tuning and export-lst. With --unmixing-from, a white
+    balance, for correct --mode uncorrected|flat, export-tuning and export-lst. With --unmixing-from, a white
     through your own optics takes the unmixing of a jig calibration. Prints the checks that need a look.
     """
     from .analysis.diagnostics import diagnose
@@ -291,7 +300,7 @@ def calibrate_cmd(
     what = (
         f"worst noise penalty (centre mode) {float(cal.noise_penalty('centre').max()):.2f}"
         if cal.has_unmixing
-        else "a flat field from the white alone (modes balance and flat, no colour unmixing), "
+        else "a flat field from the white alone (modes uncorrected and flat, no colour unmixing), "
         f"worst noise penalty (flat mode) {float(cal.noise_penalty('flat').max()):.2f}"
     )
     lines = [
@@ -299,7 +308,7 @@ def calibrate_cmd(
         f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, {what}"
         + (f", unmixing from {unmixing_from.name}" if unmixing_from else "")
     ]
-    for info in cal.meta["inputs"]:
+    for info in cal.inputs:
         if info.get("frame_count", 1) > 1:
             lines.append(
                 f"{info['role']}: {info['frame_count']} frames averaged: temporal noise "
@@ -395,29 +404,32 @@ def correct_cmd(
 
     from rich.progress import TimeRemainingColumn
 
-    from .batch import run_batch
-    from .calibration import MODES
-    from .output import OUTPUT_FORMATS, SRGB_FORMATS
+    from .batch import BatchOptionError, BatchOptions, run_batch
+    from .output import OUTPUT_FORMATS
 
-    mode = _choice(mode, MODES, "--mode")
+    mode = _mode(mode)
     output_format = _choice(output_format, OUTPUT_FORMATS, "--output-format")
-    if (white_image is not None or input_encoding is not None) and not processed:
-        raise typer.BadParameter("--white and --input-encoding go with --processed")
-    if tuning_file is not None and not processed and output_format not in SRGB_FORMATS:
-        raise typer.BadParameter(
-            "without --processed it gives the colour matrix of --output-format " + ", ".join(SRGB_FORMATS),
-            param_hint="--tuning",
+    try:
+        options = BatchOptions(
+            out_dir=out,
+            zarr_path=zarr_path,
+            mosaic=_parse_tiles(mosaic),
+            mode=mode,
+            binned=binned,
+            workers=workers,
+            scheduler=scheduler,
+            overwrite=overwrite,
+            compression=compression,
+            processed=processed,
+            input_encoding=input_encoding,
+            output_format=output_format,
+            **_batch_read_options(pattern, black_level, raw_format, size, stride, frame, sensor),
+            white=white_image,
+            tuning=tuning_file,
         )
-    if processed and binned:
-        raise typer.BadParameter("--binned is for raw images")
-    if (out is None) == (zarr_path is None):
-        raise typer.BadParameter("give --out FOLDER for image files, or --zarr STACK.zarr for one stack")
-    if workers is not None and scheduler is not None:
-        raise typer.BadParameter("not with --scheduler (the cluster has its own)", param_hint="--workers")
-    if mosaic is not None and zarr_path is None:
-        raise typer.BadParameter(
-            "a mosaic is a tiling of one --zarr stack: give --zarr STACK.zarr", param_hint="--mosaic"
-        )
+    except BatchOptionError as exc:  # options that do not go together, under their command-line names
+        hint = _BATCH_OPTION_NAMES.get(exc.option) if exc.option else None
+        raise typer.BadParameter(exc.message(_BATCH_OPTION_NAMES), param_hint=hint) from None
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -439,26 +451,7 @@ def correct_cmd(
         progress.update(bar["task"], completed=finished, rate=f"{finished / elapsed:.1f} files/s" if finished else "")
 
     try:
-        result = run_batch(
-            calibration,
-            inputs,
-            out,
-            zarr_path=zarr_path,
-            mosaic=_parse_tiles(mosaic),
-            mode=mode,
-            binned=binned,
-            workers=workers,
-            scheduler=scheduler,
-            overwrite=overwrite,
-            compression=compression,
-            processed=processed,
-            input_encoding=input_encoding,
-            output_format=output_format,
-            **_batch_read_options(pattern, black_level, raw_format, size, stride, frame, sensor),
-            white=white_image,
-            tuning=tuning_file,
-            progress=show,
-        )
+        result = run_batch(calibration, inputs, options, progress=show)
     finally:
         progress.stop()
     elapsed = time.monotonic() - bar["start"] if bar else 0.0
@@ -474,6 +467,23 @@ def correct_cmd(
         console.print(f"picamcal: failed: {path}: {reason}", markup=False, highlight=False, soft_wrap=True)
     if result.failed:
         raise typer.Exit(1)
+
+
+#: The command-line names of the batch options (BatchOptions fields) that ``correct`` takes.
+_BATCH_OPTION_NAMES = {
+    "out_dir": "--out",
+    "zarr_path": "--zarr",
+    "mosaic": "--mosaic",
+    "binned": "--binned",
+    "processed": "--processed",
+    "input_encoding": "--input-encoding",
+    "white": "--white",
+    "tuning": "--tuning",
+    "output_format": "--output-format",
+    "compression": "--compression",
+    "workers": "--workers",
+    "scheduler": "--scheduler",
+}
 
 
 def _batch_read_options(*args: Any) -> dict[str, Any]:
@@ -496,8 +506,6 @@ def _parse_tiles(text: str | None) -> tuple[int, int] | None:
         columns, rows = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise typer.BadParameter(f"{text!r} is not COLUMNSxROWS", param_hint="--mosaic") from None
-    if columns < 1 or rows < 1:
-        raise typer.BadParameter("give at least one column and one row", param_hint="--mosaic")
     return columns, rows
 
 
@@ -528,7 +536,7 @@ def simulate_cmd(
     fmt: Annotated[str, typer.Option("--format", help="Raw format: dng, brcm (legacy JPEG+raw), npy, npz.")] = "dng",
     overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
 ) -> None:
-    """Simulate a calibration run: five references, a colour-wheel target and the ground truth."""
+    """Simulate a calibration run: five references, `picamcal target`'s target filling the frame, the ground truth."""
     from .simulate import RAW_WRITERS, simulate_run
 
     fmt = _choice(fmt, list(RAW_WRITERS), "--format")
@@ -719,9 +727,12 @@ def apply_tuning_cmd(
     headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
     raw = _reader(pattern, black_level, **headless)(image)
     full = given_size or full_sensor_size(raw)
-    mode = mode_for_image(full, (raw.width, raw.height), tuple(int(v) for v in crop) if crop else None)
+    crop_box = (int(crop[0]), int(crop[1]), int(crop[2]), int(crop[3])) if crop else None
+    mode = mode_for_image(full, (raw.width, raw.height), crop_box)
     try:
-        rgb = apply_tuning(raw, tuning, colour_gains=gains, ccm=ccm, mode=mode, ct=ct)
+        rgb = apply_tuning(
+            raw, tuning, colour_gains=(gains[0], gains[1]) if gains else None, ccm=ccm, mode=mode, ct=ct
+        )
     except PicamcalError as exc:
         if exc.path is None:  # a problem with the tuning's content: the tuning dict does not know its file
             raise type(exc)(exc.problem, tuning_file) from None
@@ -864,7 +875,10 @@ def target_cmd(
     ] = "1920x1080",
     overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
 ) -> None:
-    """Write the colour-wheel test target (PNG to show full-screen, or PDF to print) and its layout."""
+    """Write the colour-wheel test target (PNG to show full-screen, or PDF to print) and its layout.
+
+    The same target `picamcal simulate` photographs, laid out on WIDTHxHEIGHT pixels.
+    """
     from .target import is_target_file, save_target
 
     width, height = _parse_size(size) or (1920, 1080)
@@ -1210,12 +1224,19 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+def _click_exceptions() -> Any:
+    """click's exceptions module: typer 0.2x carries its own copy of click."""
+    import importlib
+
+    try:
+        return importlib.import_module("typer._click.exceptions")
+    except ImportError:
+        return importlib.import_module("click.exceptions")
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``picamcal`` command: runs the app and turns every error into one line and exit status 2."""
-    try:  # typer 0.2x carries its own copy of click
-        from typer._click import exceptions as click
-    except ImportError:
-        from click import exceptions as click
+    click = _click_exceptions()
 
     warnings.showwarning = _warn
     _held_warnings.clear()

@@ -4,17 +4,9 @@
 The pipeline per image: subtract black; divide each Bayer site by its white response interpolated
 smoothly from the bins (lens shading and colour balance, ``Cb LST = 1 / W``); demosaic (Malvar,
 He and Cutler 2004, from the colour-demosaicing library); apply the interpolated 3x3 matrix field
-per pixel. Modes:
-
-``balance``
-    colour balance only (one gain per channel, from the centre of the white): the uncorrected image.
-``flat``
-    vignetting and colour balance: the white reference becomes 1.0 everywhere.
-``centre``
-    ``flat`` then the unmixing field U, which restores the colours of the sensor centre everywhere
-    (the paper's recommended correction).
-``pure``
-    ``flat`` then ``Cx U``, unmixing to pure primaries (more saturated and noisier).
+per pixel. The modes (:class:`picamcal.modes.Mode`) are steps along it: ``uncorrected`` (colour balance
+only), ``flat`` (the white becomes 1.0 everywhere), ``centre`` (then ``U``, the paper's recommended
+correction) and ``pure`` (then ``Cx U``).
 
 Engines (the ``engine`` argument of :func:`correct`): ``numba`` and ``numpy`` run the fused
 full-resolution pass of :mod:`picamcal.kernels` (no full-resolution gain or matrix field in memory;
@@ -26,14 +18,16 @@ cubic spline through the bin centres, which the kernels evaluate in its local B-
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
-from .bayer import bin_centres, bin_sites, sites_to_channels
+from .bayer import bin_centres, bin_sites, block_mean, centre_region, sites_to_channels
 from .calibration import Calibration
 from .errors import PicamcalError
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from .kernels import CorrectionFields, correct_numba, correct_numpy, make_taps, numba_available, output_array
+from .modes import Mode
 from .raw.model import RawImage, require_black_level, site_channels
 from .raw.processed import ProcessedImage
 
@@ -41,18 +35,17 @@ from .raw.processed import ProcessedImage
 _ROW_BLOCK = 256
 #: Values of :func:`correct`'s ``engine``.
 ENGINES = ("auto", "numba", "numpy", "reference")
-#: Recently used correction fields, newest last: (key, source arrays, fields).
-_FIELDS_CACHE: list[tuple[tuple, list[np.ndarray], CorrectionFields]] = []
+#: How many (calibration, mode, size) correction fields :func:`correct` keeps.
 _FIELDS_CACHE_SIZE = 4
 
 
-def _site_gain_mosaic(calibration: Calibration, mode: str, height: int, width: int) -> np.ndarray:
-    """Per-pixel gain mosaic: 1 / white per Bayer site, the white interpolated from the bins (constant for balance)."""
+def _site_gain_mosaic(calibration: Calibration, mode: Mode, height: int, width: int) -> np.ndarray:
+    """Per-pixel gain mosaic: 1 / white per Bayer site, the white interpolated from the bins (constant uncorrected)."""
     gains = np.empty((height, width), dtype=np.float32)
-    centre = calibration.centre_white()
+    centre = calibration.centre_white
     for site in range(4):
         sy, sx = divmod(site, 2)
-        if mode == "balance":
+        if mode is Mode.UNCORRECTED:
             gains[sy::2, sx::2] = 1.0 / centre[site]
             continue
         size = calibration.bin_size
@@ -105,7 +98,7 @@ def _site_taps(n_pixels: int, bin_size: int) -> tuple[np.ndarray, np.ndarray]:
     return first, weights
 
 
-def correction_fields(calibration: Calibration, mode: str, height: int, width: int) -> CorrectionFields:
+def correction_fields(calibration: Calibration, mode: str | Mode, height: int, width: int) -> CorrectionFields:
     """The coarse fields of a correction mode in local spline form, for the kernels of :mod:`picamcal.kernels`.
 
     Solves for the B-spline coefficients of the per-site white and of the matrix field on the bin
@@ -115,14 +108,17 @@ def correction_fields(calibration: Calibration, mode: str, height: int, width: i
 
     Examples
     --------
-    >>> fields = correction_fields(cal, "centre", cal.height, cal.width)  # doctest: +SKIP
-    >>> fields.matrices.shape  # doctest: +SKIP
-    (9, 154, 205)
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> fields = correction_fields(cal, "centre", cal.height, cal.width)
+    >>> fields.matrices.shape, fields.white.shape  # 9 elements and 4 sites on the 15 x 20 bins' spline
+    ((9, 15, 20), (4, 15, 20))
     """
+    mode = calibration.check_mode(mode)
     size = calibration.bin_size
     white_cols = [_taps(bin_centres(width, size, sx), np.arange(sx, width, 2)) for sx in (0, 1)]
     white = None
-    if mode != "balance":
+    if mode is not Mode.UNCORRECTED:
         white = np.stack(
             [
                 spline_coefficients(
@@ -142,7 +138,7 @@ def correction_fields(calibration: Calibration, mode: str, height: int, width: i
     return CorrectionFields(
         black=np.zeros(4, dtype=np.float32),
         channels=site_channels(calibration.pattern).astype(np.int64),
-        site_gains=(1.0 / calibration.centre_white()).astype(np.float32),
+        site_gains=(1.0 / calibration.centre_white).astype(np.float32),
         white=white,
         white_rows=make_taps(*_site_taps(height, size)),
         white_cols=make_taps(*(np.stack(parts) for parts in zip(*white_cols, strict=True))),
@@ -152,33 +148,21 @@ def correction_fields(calibration: Calibration, mode: str, height: int, width: i
     )
 
 
-def _cached_fields(calibration: Calibration, mode: str, height: int, width: int) -> CorrectionFields:
-    """:func:`correction_fields`, reused while the calibration's white and matrices are unchanged.
+@functools.lru_cache(maxsize=_FIELDS_CACHE_SIZE)
+def _cached_fields(calibration: Calibration, mode: Mode, height: int, width: int) -> CorrectionFields:
+    """:func:`correction_fields`, kept for the last few calibrations (by identity: a Calibration is immutable).
 
-    Solving for the coefficients costs tens of milliseconds at 12 megapixels, a large part of a
-    frame's correction; comparing the source arrays with the copies kept here costs under one.
+    Solving for the coefficients costs tens of milliseconds at 12 megapixels, a large part of a frame's correction.
     """
-    key = (mode, height, width, calibration.bin_size, calibration.pattern, tuple(calibration.meta["centre_region"]))
-    matrices = calibration.matrices(mode)
-    sources = [calibration.site_white] + ([] if matrices is None else [matrices])
-    for i, (cached_key, cached_sources, fields) in enumerate(_FIELDS_CACHE):
-        if cached_key == key and all(
-            a.shape == b.shape and np.array_equal(a, b) for a, b in zip(cached_sources, sources, strict=True)
-        ):
-            _FIELDS_CACHE.append(_FIELDS_CACHE.pop(i))
-            return fields
-    fields = correction_fields(calibration, mode, height, width)
-    _FIELDS_CACHE.append((key, [a.copy() for a in sources], fields))
-    del _FIELDS_CACHE[:-_FIELDS_CACHE_SIZE]
-    return fields
+    return correction_fields(calibration, mode, height, width)
 
 
 def with_known_black_level(raw: RawImage, calibration: Calibration) -> RawImage:
     """``raw`` itself if its black level is known, else ``raw`` with the calibration's dark-frame black level.
 
     A raw image whose black level is unknown (NaN: a headless dump of a sensor picamcal does not know) takes
-    the black level the calibration measured from its dark frame (``meta["black_level_source"]``); the image
-    must then be taken at the dark frame's settings. Without a dark-frame level it is an error (one line
+    the black level the calibration measured from its dark frame (:attr:`Calibration.black_level_source`); the
+    image must then be taken at the dark frame's settings. Without a dark-frame level it is an error (one line
     naming the three ways to give a black level).
 
     Raises
@@ -188,21 +172,25 @@ def with_known_black_level(raw: RawImage, calibration: Calibration) -> RawImage:
 
     Examples
     --------
-    >>> dump = picamcal.read_raw("dump.raw", raw_format="SBGGR10_CSI2P", size=(640, 480))  # doctest: +SKIP
-    >>> with_known_black_level(dump, cal).black_level  # doctest: +SKIP
-    (64.0, 64.0, 64.0, 64.0)
+    >>> import dataclasses
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> cal = picamcal.calibrate(**refs)  # with a dark frame
+    >>> dump = dataclasses.replace(refs["white"], black_level=(np.nan,) * 4)  # a headless dump: level unknown
+    >>> [round(level) for level in with_known_black_level(dump, cal).black_level]
+    [64, 64, 64, 64]
     """
     if np.all(np.isfinite(raw.black_level)):
         return raw
-    if calibration.meta.get("black_level_source") != "dark frame":
+    if calibration.black_level_source != "dark frame":
         require_black_level(raw)
-    return dataclasses.replace(raw, black_level=tuple(calibration.meta["black_level"]))
+    return dataclasses.replace(raw, black_level=calibration.black_level)
 
 
 def correct(
     raw: RawImage,
     calibration: Calibration,
-    mode: str = "centre",
+    mode: str | Mode = Mode.CENTRE,
     binned: bool = False,
     *,
     engine: str = "auto",
@@ -217,9 +205,10 @@ def correct(
         (NaN) black level takes the calibration's dark-frame level (:func:`with_known_black_level`).
     calibration : Calibration
         From :func:`picamcal.calibrate` or :func:`picamcal.load_calibration`.
-    mode : {"centre", "flat", "pure", "balance"}
-        See the module docstring; ``centre`` is the paper's recommended correction. A flat calibration
-        (white only) does ``balance`` and ``flat``; the others raise CalibrationFileError.
+    mode : {"centre", "flat", "pure", "uncorrected"} or Mode
+        See :mod:`picamcal.modes`; ``centre`` is the paper's recommended correction. A flat calibration
+        (white only) does ``uncorrected`` and ``flat``; the others raise CalibrationFileError. The old name
+        ``balance`` is ``uncorrected``, with a warning.
     binned : bool
         Return the bin-resolution image (one value per bin and channel, no demosaicing) instead of
         the full-resolution one.
@@ -238,12 +227,18 @@ def correct(
 
     Examples
     --------
-    >>> import picamcal
-    >>> cal = picamcal.load_calibration("cal.npz")  # doctest: +SKIP
-    >>> rgb = picamcal.correct(picamcal.read_raw("sample.dng"), cal, mode="centre")  # doctest: +SKIP
-    >>> same = picamcal.correct(picamcal.read_raw("sample.dng"), cal, engine="numpy", out=rgb)  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references, simulate_target
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> cal = picamcal.calibrate(**simulate_references(camera, seed=1))
+    >>> target, layout = simulate_target(camera, seed=2)
+    >>> rgb = picamcal.correct(target, cal, mode="centre")
+    >>> rgb.shape, rgb.dtype
+    ((240, 320, 3), dtype('float32'))
+    >>> same = picamcal.correct(target, cal, engine="numpy", out=rgb)  # into the same buffer
+    >>> same is rgb, picamcal.correct(target, cal, "flat", binned=True).shape
+    (True, (15, 20, 3))
     """
-    calibration.check_mode(mode)
+    mode = calibration.check_mode(mode)
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENGINES)}")
     calibration.check_compatible(raw)
@@ -254,7 +249,9 @@ def correct(
             raise ValueError("out takes a full-resolution image; binned=True returns a new array")
         sites = bin_sites(raw.black_subtracted(), calibration.bin_size)
         white = (
-            np.broadcast_to(calibration.centre_white(), sites.shape) if mode == "balance" else calibration.site_white
+            np.broadcast_to(calibration.centre_white, sites.shape)
+            if mode is Mode.UNCORRECTED
+            else calibration.site_white
         )
         rgb = sites_to_channels(sites / white, raw.pattern)
         if matrices is not None:
@@ -274,7 +271,7 @@ def correct(
     return correct_numpy(raw.bayer, fields, out)
 
 
-def _correct_reference(raw: RawImage, calibration: Calibration, mode: str) -> np.ndarray:
+def _correct_reference(raw: RawImage, calibration: Calibration, mode: Mode) -> np.ndarray:
     """The plain full-resolution pipeline: whole-frame gain mosaic, colour-demosaicing, blocks of the matrix field."""
     mosaic = raw.black_subtracted()
     mosaic *= _site_gain_mosaic(calibration, mode, raw.height, raw.width)
@@ -286,19 +283,10 @@ def _correct_reference(raw: RawImage, calibration: Calibration, mode: str) -> np
     return rgb
 
 
-def _block_means(rgb: np.ndarray, block: int) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """Per-channel means over square blocks (the last may be partial) and the blocks' centres."""
-    ry = np.arange(0, rgb.shape[0], block)
-    rx = np.arange(0, rgb.shape[1], block)
-    sums = np.add.reduceat(np.add.reduceat(rgb, ry, axis=0, dtype=np.float64), rx, axis=1)
-    counts = np.outer(np.diff(np.append(ry, rgb.shape[0])), np.diff(np.append(rx, rgb.shape[1])))
-    return sums / counts[..., None], (bin_centres(rgb.shape[0], block), bin_centres(rgb.shape[1], block))
-
-
 def correct_processed(
     image: ProcessedImage | np.ndarray,
     calibration: Calibration,
-    mode: str = "centre",
+    mode: str | Mode = Mode.CENTRE,
     *,
     white: ProcessedImage | np.ndarray | None = None,
     ccm: np.ndarray | None = None,
@@ -321,8 +309,8 @@ def correct_processed(
     image : ProcessedImage or ndarray (H, W, 3)
         Linear RGB (see :func:`picamcal.raw.processed.read_processed` for undoing the tone curve).
     calibration : Calibration
-    mode : {"centre", "pure", "flat", "balance"}
-        ``flat`` and ``balance`` apply only the residual flat field (nothing without ``white``).
+    mode : {"centre", "pure", "flat", "uncorrected"} or Mode
+        ``flat`` and ``uncorrected`` apply only the residual flat field (nothing without ``white``).
     white : ProcessedImage or ndarray (H, W, 3), optional
         A processed image of the white reference, at the same size and settings.
     ccm : ndarray (3, 3), optional
@@ -342,10 +330,15 @@ def correct_processed(
 
     Examples
     --------
-    >>> from picamcal.raw.processed import read_processed
-    >>> rgb = correct_processed(read_processed("sample.jpg"), cal, "centre")  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references, simulate_target
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> cal = picamcal.calibrate(**simulate_references(camera, seed=1))
+    >>> target, _ = simulate_target(camera, seed=2)
+    >>> isp_output = correct(target, cal, "flat")  # stands for a camera whose lens shading came from ``cal``
+    >>> correct_processed(isp_output[::2, ::2], cal, "centre").shape  # a scaled output: only U is left to do
+    (120, 160, 3)
     """
-    calibration.check_mode(mode)
+    mode = calibration.check_mode(mode)
     rgb = np.array(image.rgb if isinstance(image, ProcessedImage) else image, dtype=np.float32)
     source = image.metadata.get("path", "<image>") if isinstance(image, ProcessedImage) else "<image>"
     if rgb.ndim != 3 or rgb.shape[-1] != 3:
@@ -370,7 +363,9 @@ def correct_processed(
             raise PicamcalError(f"white reference is {w.shape[1]}x{w.shape[0]}, the image {width}x{height}", source)
         if ccm is not None:
             w = np.einsum("pq,yxq->yxp", np.linalg.inv(ccm).astype(np.float32), w)
-        means, centres = _block_means(w, max(2, round(calibration.bin_size / scale_x)))
+        block = max(2, round(calibration.bin_size / scale_x))
+        means = block_mean(w, block)
+        centres = bin_centres(height, block), bin_centres(width, block)
         if np.any(means <= 0):
             raise PicamcalError("the processed white reference has blocks with no light", source)
         ay = interpolation_matrix(centres[0], np.arange(height))
@@ -384,8 +379,8 @@ def correct_processed(
         ay = interpolation_matrix(image_centres[0], np.arange(height))
         ax = interpolation_matrix(image_centres[1], np.arange(width))
         residual = 1.0 / (upsample(calibration.white.astype(np.float64), ay, ax) * isp_gains)
-        ys, xs = slice(height // 3, max(2 * height // 3, height // 3 + 1)), slice(width // 3, max(2 * width // 3, 1))
-        rgb *= (residual / residual[ys, xs].mean(axis=(0, 1))).astype(np.float32)
+        top, bottom, left, right = centre_region(height, width)  # the central ninth, in image pixels
+        rgb *= (residual / residual[top:bottom, left:right].mean(axis=(0, 1))).astype(np.float32)
     matrices = calibration.matrices(mode)
     if matrices is not None:
         apply_matrix_field(rgb, matrices, image_centres)

@@ -10,7 +10,9 @@ from typing import Any
 import numpy as np
 
 from .errors import PicamcalError, RawFormatError
+from .manifest import FRAME_FORMAT, MANIFEST_FORMAT
 from .raw import RawImage, read_raw
+from .raw.picamera2 import SIDECAR_FORMAT
 from .raw.processed import read_processed
 
 _METADATA_KEYS = ("exposure_time_s", "analogue_gain", "digital_gain", "iso", "make", "model", "legacy_mode")
@@ -25,8 +27,11 @@ def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> d
 
     Examples
     --------
-    >>> describe("white.dng")["pattern"]  # doctest: +SKIP
-    'BGGR'
+    >>> from picamcal.simulate import make_camera, render
+    >>> _ = picamcal.write_dng("white.dng", render(make_camera("imx219", size=(64, 48)), "white", rng=1))
+    >>> record = describe("white.dng")
+    >>> record["format"], record["sensor"], record["width"], record["height"], record["pattern"], record["bit_depth"]
+    ('dng', 'imx219', 64, 48, 'BGGR', 10)
     """
     path = Path(path)
     try:
@@ -83,9 +88,9 @@ def _plain(value: Any) -> Any:
 
 
 _JSON_KINDS = {
-    "picamcal-picamera2": "JSON sidecar of a picamera2 raw buffer",
-    "picamcal-acquisition": "acquisition manifest (picamcal acquire)",
-    "picamcal-acquisition-frame": "JSON sidecar of an acquired frame",
+    SIDECAR_FORMAT: "JSON sidecar of a picamera2 raw buffer",
+    MANIFEST_FORMAT: "acquisition manifest (picamcal acquire)",
+    FRAME_FORMAT: "JSON sidecar of an acquired frame",
 }
 #: JSON files larger than this are not parsed to say what they are.
 _MAX_JSON_BYTES = 16 << 20
@@ -96,8 +101,12 @@ def what_else(path: Path) -> str | None:
 
     Examples
     --------
-    >>> what_else(Path("run1/manifest.json"))  # doctest: +SKIP
+    >>> _ = Path("manifest.json").write_text('{"format": "picamcal-acquisition", "version": 1}')
+    >>> what_else(Path("manifest.json"))
     'acquisition manifest (picamcal acquire)'
+    >>> _ = Path("notes.txt").write_text("focus at 3 mm")
+    >>> what_else(Path("notes.txt")) is None
+    True
     """
     import json
 
@@ -144,8 +153,13 @@ def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dic
 
     Examples
     --------
-    >>> [survey(p)["format"] for p in sorted(Path("run1").iterdir())]  # doctest: +SKIP
-    ['dng', 'JSON sidecar of an acquired frame', ...]
+    >>> _ = Path("manifest.json").write_text('{"format": "picamcal-acquisition", "version": 1}')
+    >>> survey("manifest.json")["format"]
+    'acquisition manifest (picamcal acquire)'
+    >>> _ = Path("notes.txt").write_text("focus at 3 mm")
+    >>> record = survey("notes.txt")
+    >>> record["readable"], record["error"]
+    (False, 'not a raw image format picamcal reads (DNG, JPEG+raw, picamera2 .npy or picamcal .npz)')
     """
     path = Path(path)
     other = what_else(path) if path.is_file() else None
@@ -165,8 +179,11 @@ def files_of(items: list[Path]) -> list[Path]:
 
     Examples
     --------
-    >>> files_of([Path("run1"), Path("extra.dng")])  # doctest: +SKIP
-    [PosixPath('run1/black.dng'), ..., PosixPath('extra.dng')]
+    >>> Path("run1").mkdir()
+    >>> for name in ("white.dng", "black.dng", ".hidden"):
+    ...     _ = (Path("run1") / name).write_bytes(b"")
+    >>> [path.as_posix() for path in files_of([Path("run1"), Path("extra.dng")])]
+    ['run1/black.dng', 'run1/white.dng', 'extra.dng']
     """
     found: list[Path] = []
     for item in items:

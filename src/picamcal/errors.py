@@ -71,5 +71,29 @@ def short(value: object, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def one_line(text: str) -> str:
+    """Text from a file, fit for a one-line message: control characters and NULs as spaces, trimmed.
+
+    Examples
+    --------
+    >>> one_line(" RP_imx219\\n\\x00 ")
+    'RP_imx219'
+    """
+    return "".join(c if c.isprintable() else " " for c in text).strip()
+
+
+def exception_detail(exc: BaseException, limit: int = 80) -> str:
+    """What an exception says, for a one-line message: its type and its text, whitespace folded, cut to ``limit``.
+
+    Examples
+    --------
+    >>> exception_detail(ValueError("bad\\n  header"))
+    'ValueError: bad header'
+    """
+    detail = " ".join(str(exc).split())
+    detail = detail if len(detail) <= limit else detail[: limit - 3] + "..."
+    return f"{type(exc).__name__}: {detail}"
+
+
 class PicamcalWarning(UserWarning):
     """Something is suspicious but the result is still usable."""

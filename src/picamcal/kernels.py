@@ -102,7 +102,7 @@ class CorrectionFields(NamedTuple):
     channels : ndarray of int64 (4,)
         Channel (0 R, 1 G, 2 B) of each site.
     site_gains : ndarray (4,)
-        Constant gain per site, used when ``white`` is None (mode ``balance``).
+        Constant gain per site, used when ``white`` is None (mode ``uncorrected``).
     white : ndarray (4, ncy, ncx) or None
         B-spline coefficients of each site's white response; the gain is its reciprocal.
     white_rows : Taps
@@ -230,9 +230,9 @@ def _demosaic_block(buf: np.ndarray, y0: int, channels: np.ndarray, rgb: np.ndar
                 out[..., other] = (_F5 * v + _F4 * vertical1 - vertical2 - diagonal + _F05 * horizontal2) * _EIGHTH
 
 
-def _unmix_block(rgb: np.ndarray, y0: int, fields: CorrectionFields) -> None:
+def _unmix_block(rgb: np.ndarray, y0: int, fields: CorrectionFields, matrices: np.ndarray) -> None:
     """Apply the interpolated matrix field to rows y0 ... of the image, in place on ``rgb`` (rows, W, 3)."""
-    c = fields.matrices
+    c = matrices
     rows = slice(y0, y0 + rgb.shape[0])
     i, w = fields.matrix_rows.first[rows], fields.matrix_rows.weights[:, rows, None]
     along_y = w[0] * c[:, i] + w[1] * c[:, i + 1] + w[2] * c[:, i + 2] + w[3] * c[:, i + 3]  # (9, rows, ncx)
@@ -270,8 +270,14 @@ def correct_numpy(
     Examples
     --------
     >>> from picamcal.correct import correction_fields
-    >>> fields = correction_fields(cal, "centre", raw.height, raw.width)._replace(black=black)  # doctest: +SKIP
-    >>> rgb = correct_numpy(raw.bayer, fields)  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> cal, raw = picamcal.calibrate(**refs), refs["white"]
+    >>> black = np.asarray(raw.black_level, dtype=np.float32)
+    >>> fields = correction_fields(cal, "centre", raw.height, raw.width)._replace(black=black)
+    >>> rgb = correct_numpy(raw.bayer, fields)
+    >>> rgb.shape, round(float(rgb.mean()), 2)  # the calibration's own white comes out 1.0
+    ((240, 320, 3), 1.0)
     """
     height, width = bayer.shape
     out = output_array(out, height, width)
@@ -280,7 +286,7 @@ def correct_numpy(
         buf = _flat_rows(bayer, _reflect(np.arange(y0 - 2, y1 + 2), height), fields)
         _demosaic_block(buf, y0, fields.channels, out[y0:y1])
         if fields.matrices is not None:
-            _unmix_block(out[y0:y1], y0, fields)
+            _unmix_block(out[y0:y1], y0, fields, fields.matrices)
     return out
 
 
@@ -549,7 +555,14 @@ def correct_numba(
 
     Examples
     --------
-    >>> rgb = correct_numba(raw.bayer, correction_fields(cal, "centre", raw.height, raw.width))  # doctest: +SKIP
+    >>> from picamcal.correct import correction_fields
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> cal, raw = picamcal.calibrate(**refs), refs["white"]
+    >>> black = np.asarray(raw.black_level, dtype=np.float32)
+    >>> fields = correction_fields(cal, "centre", raw.height, raw.width)._replace(black=black)
+    >>> bool(np.allclose(correct_numba(raw.bayer, fields), correct_numpy(raw.bayer, fields), atol=1e-5))
+    True
     """
     import numba
 

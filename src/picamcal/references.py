@@ -1,16 +1,26 @@
-"""Finding the reference images of a calibration run in a folder, by their names."""
+"""The reference images of a calibration run: their roles, and finding them in a folder by name or manifest."""
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
 from .errors import CalibrationInputError
+from .manifest import MANIFEST_NAME, AcquisitionError, load_manifest
+from .raw import HEADLESS_SUFFIXES, RAW_SUFFIXES
 
+__all__ = ["COLOURS", "ROLES", "find_references", "read_manifest", "role_of"]
+
+#: The roles of the reference images, in the order they are captured: the white, the three colours, the black
+#: (LED off). The one list of them: calibration, acquisition, simulator and command line all use it.
 ROLES = ("white", "red", "green", "blue", "black")
+#: The colour references, each lit by one primary of the illuminator.
 COLOURS = ("red", "green", "blue")
-#: Suffixes of reference files: DNG, legacy JPEG+raw, picamera2 .npy, picamcal .npz, headless dumps (rpicam-raw).
-RAW_SUFFIXES = {".dng", ".jpg", ".jpeg", ".npy", ".npz", ".raw"}
+# What an acquisition must have captured before it can be calibrated.
+_REQUIRED = ("white", *COLOURS)
+# Every raw file a reference can be: headless dumps too, as calibrate takes their sensor and size as options.
+_REFERENCE_SUFFIXES = frozenset((*RAW_SUFFIXES, *HEADLESS_SUFFIXES))
 _PAPER_STYLE = re.compile(r"r(\d+)_g(\d+)_b(\d+)", re.IGNORECASE)
 
 
@@ -43,6 +53,57 @@ def _natural(path: Path) -> list:
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name.lower())]
 
 
+def read_manifest(folder: str | os.PathLike[str], *, extras: bool = False) -> dict[str, Path]:
+    """The captured files of an acquisition (``picamcal acquire``), role -> path, for ``picamcal calibrate DIR``.
+
+    Parameters
+    ----------
+    folder : path-like
+        A folder written by :func:`picamcal.acquire.acquisition.acquire`, with its ``manifest.json``
+        (:func:`picamcal.manifest.load_manifest`).
+    extras : bool
+        Also return the extra images (test targets); by default only the references (:data:`ROLES`).
+
+    Returns
+    -------
+    dict of str to Path
+        ``white``, ``red``, ``green``, ``blue`` and (when captured) ``black``, in capture order.
+
+    Raises
+    ------
+    AcquisitionError
+        No or a corrupt manifest, a required reference not captured yet, or a listed file missing.
+
+    Examples
+    --------
+    A run of the simulated camera and light:
+
+    >>> from picamcal.acquire.acquisition import acquire
+    >>> from picamcal.acquire.cameras import SimCamera
+    >>> camera = SimCamera("imx219", size=(64, 48))
+    >>> _ = acquire(camera, camera.light, "run1", extras=["target"], prompt=print, settle_s=0)
+    Put the target in front of the camera and press Enter
+    >>> {role: path.name for role, path in read_manifest("run1").items()}
+    {'white': 'white.dng', 'red': 'red.dng', 'green': 'green.dng', 'blue': 'blue.dng', 'black': 'black.dng'}
+    >>> read_manifest("run1", extras=True)["target"].name
+    'target.dng'
+    """
+    folder = Path(folder)
+    record = load_manifest(folder)
+    files = {e["role"]: folder / e["file"] for e in record["entries"] if extras or e["role"] in ROLES}
+    missing = [role for role in _REQUIRED if role not in files]
+    if missing:
+        raise AcquisitionError(
+            f"the acquisition is incomplete (no {', '.join(missing)} yet): run picamcal acquire again with the same "
+            "--out to finish it",
+            folder,
+        )
+    for path in files.values():
+        if not path.is_file():
+            raise AcquisitionError("listed in the manifest but missing", path)
+    return files
+
+
 def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, Path | list[Path]]:
     """Map each role to its file (or files) in a folder.
 
@@ -57,22 +118,25 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     CalibrationInputError
         The folder is missing or cannot be listed, has no white, or has some but not all of red, green and blue.
     AcquisitionError
-        The folder holds a ``manifest.json`` that is not a usable one (see
-        :func:`picamcal.acquire.acquisition.load_manifest`).
+        The folder holds a ``manifest.json`` that is not a usable one (:func:`read_manifest`).
 
     Examples
     --------
-    >>> find_references("run1")  # doctest: +SKIP
-    {'white': PosixPath('run1/white.dng'), 'red': PosixPath('run1/red.dng'), ...}
-    >>> find_references("microscope")  # doctest: +SKIP
-    {'white': [PosixPath('microscope/white_1.dng'), PosixPath('microscope/white_2.dng')]}
+    Only the names are looked at (empty files will do here):
+
+    >>> from pathlib import Path
+    >>> for name in ("white.dng", "red.dng", "green.dng", "blue.dng", "notes.txt"):
+    ...     _ = Path(name).write_bytes(b"")
+    >>> {role: path.name for role, path in find_references(".").items()}
+    {'blue': 'blue.dng', 'green': 'green.dng', 'red': 'red.dng', 'white': 'white.dng'}
+    >>> _ = Path("white_2.dng").write_bytes(b"")
+    >>> [path.name for path in find_references(".")["white"]]
+    ['white.dng', 'white_2.dng']
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise CalibrationInputError("no such folder of reference images", folder)
-    if not in_situ and (folder / "manifest.json").is_file():
-        from .acquire.acquisition import read_manifest
-
+    if not in_situ and (folder / MANIFEST_NAME).is_file():
         return dict(read_manifest(folder))
     try:
         entries = sorted(folder.iterdir(), key=_natural)
@@ -81,7 +145,7 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     found: dict[str, list[Path]] = {}
     for path in entries:
         # is_file follows links and is False for a FIFO, a device or a symlink loop: those are left out
-        role = role_of(path.name) if path.suffix.lower() in RAW_SUFFIXES and path.is_file() else None
+        role = role_of(path.name) if path.suffix.lower() in _REFERENCE_SUFFIXES and path.is_file() else None
         if role and not (in_situ and role in COLOURS):
             found.setdefault(role, []).append(path)
     if "white" not in found:

@@ -62,6 +62,10 @@ class Sensor:
         Raw modes of the legacy firmware; empty for sensors it does not support.
     monochrome : bool
         No colour filter array: picamcal, which unmixes colour crosstalk, refuses its images.
+    legacy_ident : str
+        What the legacy firmware's raw block starts with: ``BRCM``, ``BRCMo`` on the HQ camera.
+    legacy_aliases : tuple of str
+        Other EXIF ``Model`` texts of early legacy firmware that mean this sensor without naming it.
     """
 
     name: str
@@ -75,6 +79,8 @@ class Sensor:
     legacy_model: str | None = None
     legacy_modes: tuple[LegacyMode, ...] = ()
     monochrome: bool = False
+    legacy_ident: str = "BRCM"
+    legacy_aliases: tuple[str, ...] = ()
 
     @property
     def white_level(self) -> int:
@@ -112,6 +118,7 @@ SENSORS: dict[str, Sensor] = {
                 LegacyMode((5,), 1296, 730, 10, 1233920),
                 LegacyMode((6, 7), 640, 480, 10, 445440),
             ),
+            legacy_aliases=("testc",),  # early firmware's RP_testc (LibRaw does not take it)
         ),
         # imx219.json 4096 (64 at 10 bits); imx219.c 3280x2464 10-bit; unitCellSize 1120.
         Sensor(
@@ -150,6 +157,7 @@ SENSORS: dict[str, Sensor] = {
                 LegacyMode((), 2028, 1080, 12, 3375104),
                 LegacyMode((), 1012, 760, 10, 1015808),
             ),
+            legacy_ident="BRCMo",
         ),
         # The Camera Module 3 has no legacy raw format (libcamera only).
         # imx708.json 4096 (64 at 10 bits); imx708.c 4608x2592 SRGGB10; unitCellSize 1400.

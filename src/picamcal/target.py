@@ -1,27 +1,19 @@
-"""The colour-wheel test target: its layout, an anti-aliased rendering, and files to display or print.
+"""The colour-wheel test target as files to display or print: ``picamcal target``.
 
-The paper tests its corrections on an image of colour wheels shown on a computer screen and imaged
-through the custom optics (Figure "colour_wheels_images"), comparing the wheels away from the centre of
-the frame with the one in the centre (Figure "matrix_correction_wheels_and_polar"). This target has nine
-wheels, one in the centre, one near each corner and one near the middle of each edge, each of six
-60-degree segments of the sRGB primaries and secondaries (red, yellow, green, cyan, blue, magenta) on
-white, in the same order and at the same angles as the simulator's target
-(:func:`picamcal.simulate.wheel_layout`).
+The target itself (nine wheels of six segments and five fiducial marks) is defined once in
+:mod:`picamcal.colour_wheel`, which the simulator photographs and :mod:`picamcal.analysis.wheels` looks
+for. This module lays it out on a screen or page of a printable size (:func:`target_layout`), encodes it as
+8-bit sRGB (:func:`render_target`) and writes it as a PNG or PDF with its layout beside it
+(:func:`save_target`), marked so that ``--overwrite`` knows a file it wrote (:func:`is_target_file`).
 
-Five black fiducial marks let :func:`picamcal.analysis.wheels.find_wheels` map the layout onto a
-photograph of the target: a ring (a black disc with a white dot in its middle) near each corner, and a
-smaller solid disc beside the top-left ring, towards the top-right one, which fixes the target's
-orientation and tells a mirrored image from a true one.
-
-Coordinates are in pixels of the rendering, with pixel centres at integer coordinates (pixel ``(i, j)``
-covers ``x`` from ``j - 0.5`` to ``j + 0.5``), the convention of :mod:`picamcal.analysis.metrics`; angles are
-``atan2(-(y - cy), x - cx)`` in degrees, counter-clockwise from +x as seen on screen.
+Coordinates are in pixels of the rendering, with pixel centres at integer coordinates, the convention of
+:mod:`picamcal.analysis.metrics`; angles are ``atan2(-(y - cy), x - cx)`` in degrees, counter-clockwise from
++x as seen on screen.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -32,35 +24,12 @@ from PIL import Image, PngImagePlugin
 
 from ._atomic import atomic_path
 from .analysis.metrics import encode_srgb
-from .colour_wheel import SEGMENTS
+from .colour_wheel import wheel_layout, wheel_scene
 from .errors import PicamcalError
-from .limits import MAX_PIXELS_VARIABLE, max_pixels
 
 __all__ = ["is_target_file", "render_target", "save_target", "target_layout"]
 
 
-# Wheel positions: (name, column, row) with columns and rows -1, 0, 1 for left/top, middle, right/bottom.
-_WHEELS = (
-    ("centre", 0, 0),
-    ("top-left", -1, -1),
-    ("top", 0, -1),
-    ("top-right", 1, -1),
-    ("left", -1, 0),
-    ("right", 1, 0),
-    ("bottom-left", -1, 1),
-    ("bottom", 0, 1),
-    ("bottom-right", 1, 1),
-)
-# Sizes as fractions of m = min(width, height). The outer wheels sit 15 % of the width or height from the
-# edges (as the simulator's), but at least 0.17 m so that they keep clear of the fiducials on a square page.
-_WHEEL_RADIUS = 0.10
-_WHEEL_MARGIN = 0.15
-_WHEEL_MARGIN_MIN = 0.17
-_RING_OFFSET = 0.045  # ring centre from each edge
-_RING_RADIUS = 0.025
-_RING_HOLE = 0.4  # the white dot's radius, as a fraction of the ring's
-_DISC_OFFSET = 0.12  # the orientation disc's centre from the left edge (its y is the top rings')
-_DISC_RADIUS = 0.015
 _MIN_SIZE = 64  # pixels, below which the marks are too small to find
 _PDF_PAGE_WIDTH_IN = 11.69  # A4 landscape: the PDF page is the target, this wide
 #: What the PNG's Software text and the PDF's Creator say, so that --overwrite knows a target it wrote.
@@ -69,7 +38,10 @@ _PDF_TAIL = 1 << 16  # matplotlib writes the document information (Creator) afte
 
 
 def target_layout(width: int = 1920, height: int = 1080) -> dict[str, Any]:
-    """The layout of the colour-wheel target: nine wheels of six segments and five fiducial marks.
+    """The layout of the colour-wheel target on a screen or page: nine wheels and five fiducial marks.
+
+    This is :func:`picamcal.colour_wheel.wheel_layout`, the one layout of the target (the simulator
+    photographs the same one laid out on its frame), refused below the size at which its marks can be found.
 
     Parameters
     ----------
@@ -80,10 +52,9 @@ def target_layout(width: int = 1920, height: int = 1080) -> dict[str, Any]:
     Returns
     -------
     dict
-        JSON-serialisable, in the layout format of :func:`picamcal.simulate.wheel_layout` plus fiducials:
-        ``"width"``, ``"height"``, ``"units"`` (``"pixels"``), ``"segments"`` (``name``, ``colour`` in
-        sRGB, ``start_deg``, ``end_deg``), ``"wheels"`` (``name``, ``x``, ``y``, ``radius``: ``"centre"``,
-        ``"top-left"``, ``"top"``, ``"top-right"``, ``"left"``, ``"right"``, ``"bottom-left"``,
+        JSON-serialisable: ``"width"``, ``"height"``, ``"units"`` (``"pixels"``), ``"segments"`` (``name``,
+        ``colour`` in sRGB, ``start_deg``, ``end_deg``), ``"wheels"`` (``name``, ``x``, ``y``, ``radius``:
+        ``"centre"``, ``"top-left"``, ``"top"``, ``"top-right"``, ``"left"``, ``"right"``, ``"bottom-left"``,
         ``"bottom"``, ``"bottom-right"``) and ``"fiducials"`` (``name``, ``kind``, ``x``, ``y``,
         ``radius``, and ``hole_radius`` for rings): four ``"ring"`` marks named by their corner and one
         ``"disc"`` named ``"orientation"``.
@@ -105,55 +76,15 @@ def target_layout(width: int = 1920, height: int = 1080) -> dict[str, Any]:
     width, height = int(width), int(height)
     if min(width, height) < _MIN_SIZE:
         raise PicamcalError(f"the target needs at least {_MIN_SIZE} x {_MIN_SIZE} pixels, got {width} x {height}")
-    limit = max_pixels()
-    if width * height > limit:
-        raise PicamcalError(
-            f"a target of {width}x{height} pixels ({width * height / 1e6:.0f} MP) is over the limit of "
-            f"{limit / 1e6:.0f} MP (set {MAX_PIXELS_VARIABLE} to render larger targets)"
-        )
-    m = min(width, height)
-    cx, cy = (width - 1) / 2, (height - 1) / 2
-    margin_x = max(_WHEEL_MARGIN * width, _WHEEL_MARGIN_MIN * m)
-    margin_y = max(_WHEEL_MARGIN * height, _WHEEL_MARGIN_MIN * m)
-    step_x, step_y = width / 2 - margin_x, height / 2 - margin_y
-    wheels = [
-        {"name": name, "x": _r(cx + col * step_x), "y": _r(cy + row * step_y), "radius": _r(_WHEEL_RADIUS * m)}
-        for name, col, row in _WHEELS
-    ]
-    near, far_x, far_y = _RING_OFFSET * m - 0.5, width - 0.5 - _RING_OFFSET * m, height - 0.5 - _RING_OFFSET * m
-    ring = {"kind": "ring", "radius": _r(_RING_RADIUS * m), "hole_radius": _r(_RING_HOLE * _RING_RADIUS * m)}
-    fiducials = [
-        {"name": "top-left", "x": _r(near), "y": _r(near), **ring},
-        {"name": "top-right", "x": _r(far_x), "y": _r(near), **ring},
-        {"name": "bottom-left", "x": _r(near), "y": _r(far_y), **ring},
-        {"name": "bottom-right", "x": _r(far_x), "y": _r(far_y), **ring},
-        {
-            "name": "orientation",
-            "kind": "disc",
-            "x": _r(_DISC_OFFSET * m - 0.5),
-            "y": _r(near),
-            "radius": _r(_DISC_RADIUS * m),
-        },
-    ]
-    return {
-        "width": width,
-        "height": height,
-        "units": "pixels",
-        "segments": [
-            {"name": name, "colour": list(colour), "start_deg": 60 * k, "end_deg": 60 * (k + 1)}
-            for k, (name, colour) in enumerate(SEGMENTS)
-        ],
-        "wheels": wheels,
-        "fiducials": fiducials,
-    }
+    return wheel_layout(width, height)
 
 
 def render_target(layout: Mapping[str, Any], supersample: int = 4) -> np.ndarray:
     """Render a target layout as an 8-bit sRGB image: segments in their colours, fiducials black, on white.
 
-    Each pixel near an edge averages ``supersample`` x ``supersample`` samples in linear light before
-    the sRGB encoding (:func:`picamcal.analysis.metrics.encode_srgb`), so a pixel half covered by red shows half
-    the red light, as a screen should; pixels away from every edge take their colour at the centre.
+    The linear rendering of :func:`picamcal.colour_wheel.wheel_scene` (each pixel near an edge averages
+    ``supersample`` x ``supersample`` samples in linear light, so a pixel half covered by red shows half the
+    red light, as a screen should), encoded by :func:`picamcal.analysis.metrics.encode_srgb`.
 
     Parameters
     ----------
@@ -179,31 +110,7 @@ def render_target(layout: Mapping[str, Any], supersample: int = 4) -> np.ndarray
     >>> image.shape, image[0, 160].tolist(), image[115, 170].tolist()  # white margin, red segment
     ((240, 320, 3), [255, 255, 255], [255, 0, 0])
     """
-    supersample = int(supersample)
-    if supersample < 1:
-        raise PicamcalError(f"supersample must be at least 1, got {supersample}")
-    width, height = int(layout["width"]), int(layout["height"])
-    shapes = _shapes(layout)
-    linear = np.ones((height, width, 3), dtype=np.float32)
-    offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
-    for bbox in {shape["bbox"] for shape in shapes}:
-        x0, x1 = max(0, bbox[0]), min(width, bbox[1])
-        y0, y1 = max(0, bbox[2]), min(height, bbox[3])
-        if x0 >= x1 or y0 >= y1:
-            continue
-        present = [s for s in shapes if _overlaps(s["bbox"], (x0, x1, y0, y1))]
-        xs = np.arange(x0, x1, dtype=np.float64)
-        ys = np.arange(y0, y1, dtype=np.float64)
-        # Sample at pixel centres first; supersample only the pixels where an edge passes.
-        centre = _paint(xs[None, :], ys[:, None], present)
-        edge = _near_edge(xs[None, :], ys[:, None], present)
-        ey, ex = np.nonzero(edge)
-        if ey.size:
-            sx = xs[ex][:, None, None] + offsets[None, None, :]
-            sy = ys[ey][:, None, None] + offsets[None, :, None]
-            centre[ey, ex] = _paint(sx, sy, present).mean(axis=(1, 2))
-        linear[y0:y1, x0:x1] = centre
-    return encode_srgb(linear)
+    return encode_srgb(wheel_scene(layout, supersample))
 
 
 def save_target(
@@ -244,10 +151,8 @@ def save_target(
 
     Examples
     --------
-    >>> import tempfile
-    >>> with tempfile.TemporaryDirectory() as folder:
-    ...     image_path, layout_path = save_target(Path(folder) / "wheels.png", 640, 360)
-    ...     Image.open(image_path).size, layout_path.name
+    >>> image_path, layout_path = save_target("wheels.png", 640, 360)
+    >>> Image.open(image_path).size, layout_path.name
     ((640, 360), 'wheels.json')
     """
     image_path = Path(path)
@@ -291,10 +196,8 @@ def is_target_file(path: str | os.PathLike[str]) -> bool:
 
     Examples
     --------
-    >>> import tempfile
-    >>> with tempfile.TemporaryDirectory() as folder:
-    ...     image_path, layout_path = save_target(Path(folder) / "wheels.png", 320, 240)
-    ...     is_target_file(image_path), is_target_file(layout_path), is_target_file(__file__)
+    >>> image_path, layout_path = save_target("wheels.png", 320, 240)
+    >>> is_target_file(image_path), is_target_file(layout_path), is_target_file(__file__)
     (True, True, False)
     """
     path = Path(path)
@@ -321,73 +224,3 @@ def is_target_file(path: str | os.PathLike[str]) -> bool:
         except OSError:
             return False
     return False
-
-
-def _r(value: float) -> float:
-    return round(float(value), 6)
-
-
-def _shapes(layout: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """Wheels and fiducials as drawable shapes, each with its pixel bounding box (x0, x1, y0, y1)."""
-    segments = []
-    for segment in layout["segments"]:
-        if "colour" not in segment:
-            raise PicamcalError(f"segment {segment.get('name')!r} of the layout has no colour to render")
-        start = float(segment["start_deg"]) % 360.0
-        span = (float(segment["end_deg"]) - float(segment["start_deg"])) % 360.0 or 360.0
-        segments.append((start, span, np.asarray(segment["colour"], dtype=np.float32)))
-    shapes = []
-    for wheel in layout["wheels"]:
-        shapes.append({"kind": "wheel", "segments": segments, **_circle(wheel)})
-    for mark in layout.get("fiducials", []):
-        shape = {"kind": str(mark.get("kind", "disc")), "hole": float(mark.get("hole_radius", 0.0)), **_circle(mark)}
-        shapes.append(shape)
-    return shapes
-
-
-def _overlaps(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
-    return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
-
-
-def _circle(item: Mapping[str, Any]) -> dict[str, Any]:
-    x, y, radius = float(item["x"]), float(item["y"]), float(item["radius"])
-    reach = radius + 1.0
-    bbox = (math.floor(x - reach), math.ceil(x + reach) + 1, math.floor(y - reach), math.ceil(y + reach) + 1)
-    return {"x": x, "y": y, "radius": radius, "bbox": bbox}
-
-
-def _paint(x: np.ndarray, y: np.ndarray, shapes: list[dict[str, Any]]) -> np.ndarray:
-    """Linear RGB of the target at points (x, y) (broadcast together): white, then each shape over it."""
-    x, y = np.broadcast_arrays(x, y)
-    out = np.ones((*x.shape, 3), dtype=np.float32)
-    for shape in shapes:
-        dx, dy = x - shape["x"], y - shape["y"]
-        rho = np.hypot(dx, dy)
-        inside = rho <= shape["radius"]
-        if shape["kind"] == "wheel":
-            angle = np.degrees(np.arctan2(-dy, dx)) % 360.0
-            for start, span, colour in shape["segments"]:
-                out[inside & ((angle - start) % 360.0 < span)] = colour
-        else:
-            out[inside & (rho > shape["hole"])] = 0.0
-    return out
-
-
-def _near_edge(x: np.ndarray, y: np.ndarray, shapes: list[dict[str, Any]]) -> np.ndarray:
-    """Pixels centred at (x, y) that an edge may cross (within 0.75 pixel, beyond half the diagonal)."""
-    near = 0.75
-    x, y = np.broadcast_arrays(x, y)
-    edge = np.zeros(x.shape, dtype=bool)
-    for shape in shapes:
-        dx, dy = x - shape["x"], y - shape["y"]
-        rho = np.hypot(dx, dy)
-        edge |= np.abs(rho - shape["radius"]) < near
-        if shape["kind"] == "wheel":
-            for start, _, _ in shape["segments"]:
-                b = math.radians(start)
-                along = dx * math.cos(b) - dy * math.sin(b)
-                across = np.abs(dx * math.sin(b) + dy * math.cos(b))
-                edge |= (np.where(along > 0, across, rho) < near) & (rho < shape["radius"] + near)
-        elif shape["hole"] > 0:
-            edge |= np.abs(rho - shape["hole"]) < near
-    return edge

@@ -9,22 +9,9 @@ as ``ROLE.dng`` with a ``ROLE.json`` sidecar, and ``manifest.json`` lists what h
 frame, so an interrupted run keeps its files and a re-run resumes where it stopped. :func:`read_manifest` gives
 ``picamcal calibrate`` the files.
 
-``manifest.json``::
-
-    {"format": "picamcal-acquisition", "version": 1, "software_version": "...", "created": "...",
-     "updated": "...",
-     "camera": {"kind": "sim", "sensor": "imx219", "size": [320, 240], ...},   # Camera.describe()
-     "illuminator": {"kind": "sim"},                                           # Illuminator.describe()
-     "settings": {"exposure_time_us": 4082, "analogue_gain": 1.0, "colour_gains": [1.8, 1.3]},
-     "auto_exposure": {"target_fraction": 0.8, "percentile": 99.9, "white_fraction": 0.801,
-                       "clipped_fraction": 0.0, "iterations": 3},
-     "settle_s": 0.5,
-     "roles": ["white", "red", "green", "blue", "black", "target"],            # planned, in order
-     "entries": [{"role": "white", "file": "white.dng", "sidecar": "white.json", "sha256": "...",
-                  "time": "...", "light": [255, 255, 255], "extra": false}, ...],
-     "complete": false}
-
-A sidecar holds its entry, the settings, the camera and illuminator descriptions and the frame's metadata.
+The manifest's format, :data:`MANIFEST_NAME`, :class:`AcquisitionError` and :func:`load_manifest` live in
+:mod:`picamcal.manifest`, and :func:`read_manifest` in :mod:`picamcal.references`, so that reading a run needs
+nothing of the acquisition; they are re-exported here.
 """
 
 from __future__ import annotations
@@ -44,16 +31,16 @@ from typing import Any
 import numpy as np
 
 from .._atomic import atomic_path
-from .._json import Fields, read_json
 from .._version import __version__
 from ..bayer import sites_to_channels
 from ..calibrate import MAX_CLIPPED_FRACTION
+from ..colour_wheel import wheel_layout, wheel_scene
 from ..errors import OutputError, PicamcalError, PicamcalWarning
+from ..manifest import FRAME_FORMAT, MANIFEST_FORMAT, MANIFEST_NAME, MANIFEST_VERSION, AcquisitionError, load_manifest
 from ..raw.dng import write_dng
 from ..raw.model import RawImage
 from ..records import json_default, sha256_file
-from ..references import role_of
-from ..simulate import wheel_layout, wheel_scene
+from ..references import read_manifest, role_of
 from .base import Illuminator
 from .cameras import Camera, SimCamera, open_camera
 from .illuminators import REFERENCE_LIGHTS, open_illuminator
@@ -70,19 +57,9 @@ __all__ = [
     "read_manifest",
 ]
 
-MANIFEST_NAME = "manifest.json"
-MANIFEST_FORMAT = "picamcal-acquisition"
-FRAME_FORMAT = "picamcal-acquisition-frame"
-MANIFEST_VERSION = 1
-_REQUIRED = ("white", "red", "green", "blue")
-_MAX_MANIFEST_BYTES = 16 << 20
 _START_EXPOSURE_US = 10_000.0
 _MAX_ITERATIONS = 12
 _SAMPLE_PIXELS = 2_000_000  # auto-exposure statistics on at most this many pixels (whole 2x2 blocks)
-
-
-class AcquisitionError(PicamcalError):
-    """The acquisition cannot go on: exposure out of reach, a corrupt manifest, another run in the folder."""
 
 
 class AcquisitionInterrupted(AcquisitionError):
@@ -241,123 +218,6 @@ def _write_json(path: Path, record: Mapping[str, Any]) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-def load_manifest(folder: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read and check the ``manifest.json`` of an acquisition folder.
-
-    Every value picamcal uses is checked: the format and version; ``camera`` (``kind``, ``sensor``, a ``size``
-    of two positive whole numbers) and ``illuminator`` (``kind``); ``settings`` (a positive exposure time in µs
-    and analogue gain, two positive colour gains); ``roles`` (distinct names of letters, digits, ``-`` and ``_``);
-    and ``entries`` (one per captured role, each a ``file`` that is a plain name in the folder and, where present,
-    a ``sha256``, the ``light`` as three 0..255 levels).
-
-    Raises
-    ------
-    AcquisitionError
-        No manifest, one that is not a regular file, not UTF-8 JSON, or of another format or version, or any value
-        of the wrong type, count or range; one line naming the file and the value.
-
-    Examples
-    --------
-    >>> load_manifest("run1")["settings"]  # doctest: +SKIP
-    {'exposure_time_us': 4082, 'analogue_gain': 1.0, 'colour_gains': [1.8, 1.3]}
-    """
-    path = Path(folder) / MANIFEST_NAME
-    if not os.path.lexists(path):
-        raise AcquisitionError("no acquisition manifest (written by picamcal acquire)", path)
-    try:
-        record = read_json(path, AcquisitionError, "JSON", max_bytes=_MAX_MANIFEST_BYTES)
-    except AcquisitionError as exc:
-        raise AcquisitionError(f"corrupt manifest ({exc.problem}); move it away", path) from None
-    if not isinstance(record, dict) or record.get("format") != MANIFEST_FORMAT:
-        raise AcquisitionError(f'not a picamcal acquisition manifest (no "format": "{MANIFEST_FORMAT}")', path)
-    if type(record.get("version")) is not int or record["version"] != MANIFEST_VERSION:
-        version = record.get("version")
-        shown = repr(version)[:20] if isinstance(version, (int, float, type(None))) else type(version).__name__
-        raise AcquisitionError(f"unsupported manifest version {shown}", path)
-    _check_manifest(record, path)
-    return record
-
-
-def _check_manifest(record: dict[str, Any], path: Path) -> None:
-    """The types, counts and ranges of what :func:`acquire` and :func:`read_manifest` use (see load_manifest)."""
-    fields = Fields(path, AcquisitionError, "a usable acquisition manifest", "move it away and acquire again")
-    fields.mapping(record, "the manifest", ("camera", "illuminator", "settings", "roles", "entries"))
-    camera = fields.mapping(record["camera"], "camera", ("kind", "size"))
-    fields.text(camera["kind"], "camera.kind")
-    if camera.get("sensor") is not None:
-        fields.text(camera["sensor"], "camera.sensor")
-    fields.numbers(camera["size"], "camera.size", 2, integer=True, positive=True)
-    fields.text(fields.mapping(record["illuminator"], "illuminator", ("kind",))["kind"], "illuminator.kind")
-    settings = fields.mapping(record["settings"], "settings", ("exposure_time_us", "analogue_gain", "colour_gains"))
-    fields.number(settings["exposure_time_us"], "settings.exposure_time_us", positive=True)
-    fields.number(settings["analogue_gain"], "settings.analogue_gain", positive=True)
-    fields.numbers(settings["colour_gains"], "settings.colour_gains", 2, positive=True)
-    if "settle_s" in record:
-        fields.number(record["settle_s"], "settle_s", minimum=0)
-    roles = [fields.text(r, f"roles[{i}]") for i, r in enumerate(fields.items(record["roles"], "roles"))]
-    for role in roles:
-        if not role or not role.isascii() or not all(c.isalnum() or c in "-_" for c in role):
-            fields.fail("roles", f"holds {role[:40]!r}, not a name of letters, digits, '-' and '_'")
-    if len(set(roles)) < len(roles):
-        fields.fail("roles", "names a role twice")
-    seen = set()
-    for i, entry in enumerate(fields.items(record["entries"], "entries", maximum=len(roles))):
-        where = f"entries[{i}]"
-        fields.mapping(entry, where, ("role", "file"))
-        role = fields.text(entry["role"], f"{where}.role", roles)
-        name = fields.text(entry["file"], f"{where}.file")
-        if name in ("", ".", "..") or Path(name).name != name or "\\" in name:
-            fields.fail(f"{where}.file", f"must be a file name in the run's folder, not {name[:60]!r}")
-        if role in seen:
-            fields.fail("entries", f"list {role} twice")
-        seen.add(role)
-        if entry.get("sha256") is not None:
-            fields.text(entry["sha256"], f"{where}.sha256")
-        if "light" in entry:
-            fields.numbers(entry["light"], f"{where}.light", 3, integer=True, minimum=0, maximum=255)
-
-
-def read_manifest(folder: str | os.PathLike[str], *, extras: bool = False) -> dict[str, Path]:
-    """The captured files of an acquisition, role -> path, for ``picamcal calibrate DIR``.
-
-    Parameters
-    ----------
-    folder : path-like
-        A folder written by :func:`acquire`.
-    extras : bool
-        Also return the extra images (test targets); by default only the references.
-
-    Returns
-    -------
-    dict of str to Path
-        ``white``, ``red``, ``green``, ``blue`` and (when captured) ``black``, in capture order.
-
-    Raises
-    ------
-    AcquisitionError
-        No or a corrupt manifest, a required reference not captured yet, or a listed file missing.
-
-    Examples
-    --------
-    >>> read_manifest("run1")  # doctest: +SKIP
-    {'white': PosixPath('run1/white.dng'), 'red': PosixPath('run1/red.dng'), ...}
-    """
-    folder = Path(folder)
-    record = load_manifest(folder)
-    files = {e["role"]: folder / e["file"] for e in record["entries"] if extras or e["role"] in REFERENCE_LIGHTS}
-    missing = [role for role in _REQUIRED if role not in files]
-    if missing:
-        raise AcquisitionError(
-            f"the acquisition is incomplete (no {', '.join(missing)} yet): run picamcal acquire again with the same "
-            "--out to finish it",
-            folder,
-        )
-    for path in files.values():
-        if not path.is_file():
-            raise AcquisitionError("listed in the manifest but missing", path)
-    return files
-
-
 def _check_extras(extras: Iterable[str]) -> list[str]:
     names: list[str] = []
     for name in extras:
@@ -407,10 +267,11 @@ def _save_frame(
     """Write ``ROLE.dng`` and its ``ROLE.json`` sidecar (each atomically); return the manifest entry."""
     raw.metadata["role"] = role
     path = write_dng(folder / f"{role}.dng", raw)
+    sidecar_name = f"{role}.json"
     entry = {
         "role": role,
         "file": path.name,
-        "sidecar": f"{role}.json",
+        "sidecar": sidecar_name,
         "sha256": sha256_file(path),
         "time": _now(),
         "light": list(light),
@@ -425,7 +286,7 @@ def _save_frame(
         "illuminator": record["illuminator"],
         "metadata": {k: v for k, v in raw.metadata.items() if k != "path"},
     }
-    _write_json(folder / entry["sidecar"], sidecar)
+    _write_json(folder / sidecar_name, sidecar)
     return entry
 
 
@@ -453,10 +314,12 @@ def _new_record(
 
 
 def _disk_full(exc: BaseException) -> bool:
-    while exc is not None:
-        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+    """True when the error, or one it was raised from or while handling, is a full disk or quota."""
+    cause: BaseException | None = exc
+    while cause is not None:
+        if isinstance(cause, OSError) and cause.errno in (errno.ENOSPC, errno.EDQUOT):
             return True
-        exc = exc.__cause__ or exc.__context__
+        cause = cause.__cause__ or cause.__context__
     return False
 
 
@@ -532,10 +395,10 @@ def acquire(
 
     Examples
     --------
-    >>> camera = SimCamera("imx219", size=(320, 240))
-    >>> manifest = acquire(camera, camera.light, "run1", settle_s=0)  # doctest: +SKIP
-    >>> sorted(read_manifest("run1"))  # doctest: +SKIP
-    ['black', 'blue', 'green', 'red', 'white']
+    >>> camera = SimCamera("imx219", size=(64, 48))
+    >>> manifest = acquire(camera, camera.light, "run1", settle_s=0)
+    >>> manifest.name, sorted(read_manifest("run1"))
+    ('manifest.json', ['black', 'blue', 'green', 'red', 'white'])
     """
     extra_names = _check_extras(extras)
     if settle_s < 0:

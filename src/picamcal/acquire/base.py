@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
+import numpy as np
+
 from ..errors import PicamcalError
 
 
@@ -26,3 +28,26 @@ class Illuminator(Protocol):
 
     def describe(self) -> dict[str, Any]:
         """A JSON-serialisable description for the acquisition manifest (kind, port, firmware, ...)."""
+
+
+def check_rgb(red: int, green: int, blue: int) -> tuple[int, int, int]:
+    """The colour every illuminator's ``set_rgb`` is given, checked: three whole numbers 0-255.
+
+    Raises
+    ------
+    IlluminatorError
+        A value is not a whole number (a float or a bool is refused) or is outside 0-255.
+
+    Examples
+    --------
+    >>> check_rgb(255, np.uint8(0), 51)
+    (255, 0, 51)
+    >>> check_rgb(256, 0, 0)
+    Traceback (most recent call last):
+    ...
+    picamcal.acquire.base.IlluminatorError: a colour is three whole numbers 0-255, got (256, 0, 0)
+    """
+    rgb = (red, green, blue)
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 <= v <= 255 for v in rgb):
+        raise IlluminatorError(f"a colour is three whole numbers 0-255, got {rgb}")
+    return int(red), int(green), int(blue)

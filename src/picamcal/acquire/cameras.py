@@ -10,7 +10,6 @@ everywhere.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
@@ -18,11 +17,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..errors import PicamcalError
-from ..export.tuning import check_tuning
+from ..export.tuning import neutral_tuning
 from ..raw.model import RawImage
 from ..raw.picamera2 import capture_raw
-from ..sensors import LSC_GRIDS
-from ..simulate import REFERENCES, SimulatedCamera, make_camera, render
+from ..references import ROLES
+from ..simulate import SimulatedCamera, make_camera, render
 from .illuminators import REFERENCE_LIGHTS, SimIlluminator
 
 __all__ = [
@@ -31,7 +30,6 @@ __all__ = [
     "CameraLimits",
     "Picamera2Camera",
     "SimCamera",
-    "neutral_tuning",
     "open_camera",
 ]
 
@@ -91,8 +89,9 @@ class SimCamera:
     ``render(make_camera(sensor, size=size, tilt=tilt, exposure=f), light)`` with the exposure fraction
     ``f = brightness * t / 10000 * g`` (:meth:`exposure_fraction`; above 1 the scale is extrapolated and the
     white clips). Each frame's noise comes from a random stream keyed by what the camera sees: stream ``i``
-    of ``seed`` for reference ``REFERENCES[i]`` and the colour-wheel target's stream for a placed target, as
-    :func:`~picamcal.simulate.simulate_references` and :func:`~picamcal.simulate.simulate_target` draw them.
+    of ``seed`` for reference ``ROLES[i]`` (:data:`picamcal.references.ROLES`) and the colour-wheel target's
+    stream for a placed target, as :func:`~picamcal.simulate.simulate_references` and
+    :func:`~picamcal.simulate.simulate_target` draw them.
     So the frames of an acquisition are bit for bit those of the simulator at the same exposure fraction.
 
     Parameters
@@ -224,7 +223,7 @@ class SimCamera:
         amounts, role = self.light.amounts, _ROLE_OF_LIGHT.get(self.light.rgb)
         if self.placed is None:
             scene: Any = amounts
-            key: tuple[int, ...] = (REFERENCES.index(role),) if role else (_OTHER_STREAM, *self.light.rgb)
+            key: tuple[int, ...] = (ROLES.index(role),) if role else (_OTHER_STREAM, *self.light.rgb)
         else:
             scene = self.placed[1] * amounts
             key = (_TARGET_STREAM,) if role == "white" else (_OTHER_STREAM, *self.light.rgb)
@@ -260,55 +259,11 @@ class SimCamera:
         self._configured = False
 
 
-# Random streams of SimCamera frames; the first len(REFERENCES) + 2 are those of simulate_references (one per
-# reference) and simulate_target (after the dust stream), the others are keyed by the LED setting.
-_TARGET_STREAM = len(REFERENCES) + 1
-_OTHER_STREAM = len(REFERENCES) + 2
+# Random streams of SimCamera frames; the first len(ROLES) + 2 are those of simulate_references (one per
+# reference, in ROLES order) and simulate_target (after the dust stream), the others are keyed by the LED setting.
+_TARGET_STREAM = len(ROLES) + 1
+_OTHER_STREAM = len(ROLES) + 2
 _ROLE_OF_LIGHT = {rgb: role for role, rgb in REFERENCE_LIGHTS.items()}
-
-
-def neutral_tuning(stock: dict[str, Any]) -> dict[str, Any]:
-    """A copy of a libcamera tuning with a static unity lens shading table, so nothing adapts the shading.
-
-    ``rpi.alsc`` gets ``n_iter`` 0, unity ``calibrations_Cr`` and ``calibrations_Cb`` tables and a unity
-    ``luminance_lut`` (the target's grid, :data:`picamcal.sensors.LSC_GRIDS`), and loses ``corner_strength``;
-    everything else is kept. Exposure and white balance are frozen by explicit controls instead.
-
-    Parameters
-    ----------
-    stock : dict
-        The sensor's stock tuning (``Picamera2.load_tuning_file("imx219.json")``); never modified.
-
-    Returns
-    -------
-    dict
-
-    Examples
-    --------
-    >>> stock = {"version": 2.0, "target": "bcm2835", "algorithms": [{"rpi.alsc": {"n_iter": 100}}]}
-    >>> alsc = neutral_tuning(stock)["algorithms"][0]["rpi.alsc"]
-    >>> alsc["n_iter"], len(alsc["luminance_lut"]), set(alsc["calibrations_Cr"][0]["table"])
-    (0, 192, {1.0})
-    """
-    target = check_tuning(stock, "the stock tuning")
-    columns, rows = LSC_GRIDS[target]
-    unity = [1.0] * (columns * rows)
-    tuning = copy.deepcopy(stock)
-    algorithms = tuning["algorithms"]
-    entry = next((a for a in algorithms if "rpi.alsc" in a), None)
-    if entry is None:
-        entry = {"rpi.alsc": {}}
-        algorithms.append(entry)
-    alsc = entry["rpi.alsc"]
-    alsc.pop("corner_strength", None)
-    alsc.update(
-        n_iter=0,
-        luminance_strength=1.0,
-        luminance_lut=list(unity),
-        calibrations_Cr=[{"ct": 4500, "table": list(unity)}],
-        calibrations_Cb=[{"ct": 4500, "table": list(unity)}],
-    )
-    return tuning
 
 
 def _import_picamera2() -> Any:
@@ -343,9 +298,10 @@ class _Flushed:
 class Picamera2Camera:
     """A Raspberry Pi camera through picamera2, with a neutral pipeline and frozen settings.
 
-    Opening it loads the sensor's stock tuning made neutral (:func:`neutral_tuning`) and picks the
-    full-sensor mode of the highest bit depth; :meth:`configure_raw` asks for that mode's unpacked raw
-    format (the Pi 5 grants ``S<order>16``; its lossy ``PISP_COMP1`` is refused). Each capture waits for a
+    Opening it loads the sensor's stock tuning made neutral (:func:`picamcal.export.tuning.neutral_tuning`,
+    as editing tuning files is the exporter's business) unless given a tuning, and picks the full-sensor mode
+    of the highest bit depth; :meth:`configure_raw` asks for that mode's unpacked raw format (the Pi 5 grants
+    ``S<order>16``; its lossy ``PISP_COMP1`` is refused). Each capture waits for a
     frame that began exposing after the call and carries the requested exposure and gain; a camera that
     sends no frame for 5 s plus three exposures has stopped answering.
 
@@ -353,6 +309,9 @@ class Picamera2Camera:
     ----------
     camera_num : int
         Which camera (``Picamera2.global_camera_info()`` order).
+    tuning : dict, optional
+        The libcamera tuning to open the camera with, as given (``picamcal.export.tuning.load_tuning(path)``);
+        by default the sensor's stock tuning, made neutral.
 
     Raises
     ------
@@ -370,7 +329,7 @@ class Picamera2Camera:
     #: Frames to wait for new controls to reach the sensor before giving up.
     MAX_SETTLE_FRAMES = 12
 
-    def __init__(self, camera_num: int = 0) -> None:
+    def __init__(self, camera_num: int = 0, *, tuning: dict[str, Any] | None = None) -> None:
         module = _import_picamera2()
         try:
             cameras = module.Picamera2.global_camera_info()
@@ -384,12 +343,14 @@ class Picamera2Camera:
             raise CameraError(f"no camera {camera_num}: {len(cameras)} found (numbered from 0)")
         self.camera_num = camera_num
         self.model = str(cameras[camera_num].get("Model", "unknown"))
+        if tuning is None:
+            try:
+                stock = module.Picamera2.load_tuning_file(f"{self.model}.json")
+            except RuntimeError as exc:
+                raise CameraError(f"no stock libcamera tuning file for the {self.model} ({exc})") from exc
+            tuning = neutral_tuning(stock)
         try:
-            stock = module.Picamera2.load_tuning_file(f"{self.model}.json")
-        except RuntimeError as exc:
-            raise CameraError(f"no stock libcamera tuning file for the {self.model} ({exc})") from exc
-        try:
-            self._picam2 = module.Picamera2(camera_num, tuning=neutral_tuning(stock))
+            self._picam2 = module.Picamera2(camera_num, tuning=tuning)
             modes = list(self._picam2.sensor_modes)
         except RuntimeError as exc:
             raise CameraError(f"cannot open camera {camera_num} ({exc}); is another program using it?") from exc

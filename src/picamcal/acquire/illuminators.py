@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import PicamcalError
-from .base import Illuminator, IlluminatorError
+from ..references import ROLES
+from .base import Illuminator, IlluminatorError, check_rgb
 
 __all__ = [
     "REFERENCE_LIGHTS",
@@ -23,22 +24,12 @@ __all__ = [
     "open_illuminator",
 ]
 
-#: The LED setting (R, G, B, 0-255) of each reference illumination, in the order they are captured.
-REFERENCE_LIGHTS: dict[str, tuple[int, int, int]] = {
-    "white": (255, 255, 255),
-    "red": (255, 0, 0),
-    "green": (0, 255, 0),
-    "blue": (0, 0, 255),
-    "black": (0, 0, 0),
-}
+#: The LED setting (R, G, B, 0-255) of each reference role (:data:`picamcal.references.ROLES`), in the order
+#: they are captured.
+REFERENCE_LIGHTS: dict[str, tuple[int, int, int]] = dict(
+    zip(ROLES, ((255, 255, 255), (255, 0, 0), (0, 255, 0), (0, 0, 255), (0, 0, 0)), strict=True)
+)
 _NAMES = {rgb: name for name, rgb in REFERENCE_LIGHTS.items()}
-
-
-def _check_rgb(red: int, green: int, blue: int) -> tuple[int, int, int]:
-    rgb = (red, green, blue)
-    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 <= v <= 255 for v in rgb):
-        raise IlluminatorError(f"a colour is three whole numbers 0-255, got {rgb}")
-    return int(red), int(green), int(blue)
 
 
 class SimIlluminator:
@@ -67,7 +58,7 @@ class SimIlluminator:
 
     def set_rgb(self, red: int, green: int, blue: int) -> None:
         """Set the LEDs."""
-        self.rgb = _check_rgb(red, green, blue)
+        self.rgb = check_rgb(red, green, blue)
 
     def close(self) -> None:
         """Turn the light off."""
@@ -103,7 +94,7 @@ class ManualIlluminator:
 
     def set_rgb(self, red: int, green: int, blue: int) -> None:
         """Ask the user to set the colour, unless it is set already."""
-        rgb = _check_rgb(red, green, blue)
+        rgb = check_rgb(red, green, blue)
         if rgb == self.rgb:
             return
         if rgb == (0, 0, 0):
@@ -179,7 +170,7 @@ class GpioIlluminator:
 
     def set_rgb(self, red: int, green: int, blue: int) -> None:
         """Set every pixel and send the data."""
-        rgb = _check_rgb(red, green, blue)
+        rgb = check_rgb(red, green, blue)
         try:
             self._pixels.fill(rgb)
             self._pixels.show()

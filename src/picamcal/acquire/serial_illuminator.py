@@ -22,8 +22,7 @@ from typing import Any
 import serial
 from serial.tools import list_ports
 
-from .base import IlluminatorError
-from .illuminators import _check_rgb
+from .base import IlluminatorError, check_rgb
 
 __all__ = [
     "ARDUINO_USB_VIDS",
@@ -144,10 +143,19 @@ class SerialIlluminator:
 
     Examples
     --------
+    With the Arduino plugged in (needs the hardware):
+
     >>> with SerialIlluminator("/dev/ttyACM0") as light:  # doctest: +SKIP
     ...     light.set_rgb(255, 0, 0)
     ...     light.describe()
     {'kind': 'serial', 'port': '/dev/ttyACM0', 'baudrate': 9600, 'firmware': 'picamcal-illuminator 1'}
+
+    Without it:
+
+    >>> SerialIlluminator("/dev/no-such-port", reset_wait=0)
+    Traceback (most recent call last):
+    ...
+    picamcal.acquire.base.IlluminatorError: cannot open the illuminator's serial port /dev/no-such-port (...)
     """
 
     def __init__(
@@ -214,7 +222,7 @@ class SerialIlluminator:
             A value is not a whole number 0-255 (nothing is sent), the device answers an error or something
             else, or it does not answer after ``retries + 1`` tries.
         """
-        self._set(_check_rgb(red, green, blue), self.retries + 1)
+        self._set(check_rgb(red, green, blue), self.retries + 1)
 
     def close(self) -> None:
         """Switch the LED off (one try, as the device may be why the caller is closing) and close the port.
@@ -319,6 +327,10 @@ def find_illuminator_port(
     --------
     >>> find_illuminator_port()  # doctest: +SKIP
     '/dev/ttyACM0'
+    >>> find_illuminator_port(candidates=[])
+    Traceback (most recent call last):
+    ...
+    picamcal.acquire.base.IlluminatorError: no serial ports found: is the illuminator's Arduino plugged in?
     """
     ports = _candidate_ports() if candidates is None else list(candidates)
     connection, _ = _search(ports, baudrate=baudrate, timeout=timeout, reset_wait=reset_wait)
@@ -345,6 +357,10 @@ def open_serial_illuminator(spec: str = "serial", **options: Any) -> SerialIllum
     --------
     >>> open_serial_illuminator("serial:/dev/ttyACM0").describe()["port"]  # doctest: +SKIP
     '/dev/ttyACM0'
+    >>> open_serial_illuminator("serial:")
+    Traceback (most recent call last):
+    ...
+    picamcal.acquire.base.IlluminatorError: no port after 'serial:' in 'serial:' (e.g. serial:/dev/ttyACM0)
     """
     kind, colon, port = spec.partition(":")
     if kind.strip().lower() != "serial":

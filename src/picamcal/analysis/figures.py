@@ -14,7 +14,7 @@ Examples
 >>> from picamcal.simulate import make_camera, simulate_references
 >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), noise=False)
 >>> cal = calibrate(*(refs[r] for r in ("white", "red", "green", "blue")))
->>> lens_shading_maps(cal, "lst.png").name  # doctest: +SKIP
+>>> lens_shading_maps(cal, "lst.png").name
 'lst.png'
 """
 
@@ -33,6 +33,7 @@ from matplotlib.patches import Circle
 from .._atomic import atomic_path
 from ..bayer import bin_edges, sites_to_channels
 from ..calibration import Calibration
+from ..modes import Mode
 from ..raw.model import CHANNELS
 from .diagnostics import check_dust, check_vignetting_centre, dust_residual
 
@@ -62,7 +63,9 @@ def lens_shading_maps(calibration: Calibration, path: str | os.PathLike[str], *,
 
     Examples
     --------
-    >>> lens_shading_maps(cal, "lens_shading.png")  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> lens_shading_maps(cal, "lens_shading.png")
     PosixPath('lens_shading.png')
     """
     gains = calibration.lens_shading
@@ -78,7 +81,7 @@ def lens_shading_maps(calibration: Calibration, path: str | os.PathLike[str], *,
 
 
 def unmixing_grid(
-    calibration: Calibration, path: str | os.PathLike[str], *, mode: str = "centre", overwrite: bool = True
+    calibration: Calibration, path: str | os.PathLike[str], *, mode: str | Mode = Mode.CENTRE, overwrite: bool = True
 ) -> Path:
     """The 3 x 3 unmixing field as a grid of maps: row = output channel p, column = input channel q.
 
@@ -94,33 +97,35 @@ def unmixing_grid(
 
     Examples
     --------
-    >>> unmixing_grid(cal, "unmixing.png", mode="pure")  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> unmixing_grid(cal, "unmixing.png", mode="pure")
     PosixPath('unmixing.png')
     """
+    mode = calibration.check_mode(mode)
     matrices = calibration.matrices(mode)
     if matrices is None:
-        raise ValueError(f"mode {mode!r} has no unmixing matrices: use 'centre' or 'pure'")
+        raise ValueError(f"mode {mode.value!r} has no unmixing matrices: use 'centre' or 'pure'")
     diagonal = np.stack([matrices[..., k, k] for k in range(3)])
     off = np.stack([matrices[..., p, q] for p in range(3) for q in range(3) if p != q])
     diag_norm = Normalize(float(diagonal.min()), max(float(diagonal.max()), float(diagonal.min()) + 1e-6))
     reach = max(float(np.abs(off).max()), 1e-6)
     off_norm = TwoSlopeNorm(0.0, -reach, reach)
     fig, axes = _figure(calibration, 3, 3)
-    diag_mesh = off_mesh = None
+    meshes = {}
     for p in range(3):
         for q in range(3):
             ax = axes[p, q]
-            if p == q:
-                diag_mesh = _map(ax, calibration, matrices[..., p, q], GAIN_CMAP, diag_norm)
-            else:
-                off_mesh = _map(ax, calibration, matrices[..., p, q], DIVERGING_CMAP, off_norm)
+            diagonal_element = p == q
+            cmap, norm = (GAIN_CMAP, diag_norm) if diagonal_element else (DIVERGING_CMAP, off_norm)
+            meshes[diagonal_element] = _map(ax, calibration, matrices[..., p, q], cmap, norm)
             ax.set_title(f"{CHANNELS[p]} out from {CHANNELS[q]} in", fontsize="medium")
             ax.label_outer()
     everything = axes.ravel().tolist()
-    fig.colorbar(diag_mesh, ax=everything, label="diagonal element (gain)", shrink=0.8, location="right")
-    fig.colorbar(off_mesh, ax=everything, label="off-diagonal element", shrink=0.5, location="bottom")
-    what = "to the sensor centre's colours" if mode == "centre" else "to pure primaries"
-    fig.suptitle(f"Unmixing field ({mode} mode: unmixing {what})")
+    fig.colorbar(meshes[True], ax=everything, label="diagonal element (gain)", shrink=0.8, location="right")
+    fig.colorbar(meshes[False], ax=everything, label="off-diagonal element", shrink=0.5, location="bottom")
+    what = "to the sensor centre's colours" if mode is Mode.CENTRE else "to pure primaries"
+    fig.suptitle(f"Unmixing field ({mode.value} mode: unmixing {what})")
     return _save(fig, path, overwrite)
 
 
@@ -144,20 +149,22 @@ def noise_penalty_maps(
 
     Examples
     --------
-    >>> noise_penalty_maps(cal, "noise.png", channel="B")  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> noise_penalty_maps(cal, "noise.png", channel="B")
     PosixPath('noise.png')
     """
     if channel is not None and channel not in CHANNELS:
         raise ValueError(f"channel must be one of R, G, B, got {channel!r}")
     maps = {}
-    for mode in ("flat", "centre") if calibration.has_unmixing else ("flat",):
+    for mode in (Mode.FLAT, Mode.CENTRE) if calibration.has_unmixing else (Mode.FLAT,):
         penalty = calibration.noise_penalty(mode)
         maps[mode] = penalty.max(axis=-1) if channel is None else penalty[..., CHANNELS.index(channel)]
     norm = Normalize(1.0, max(max(float(m.max()) for m in maps.values()), 1.0 + 1e-6))
     y, x = calibration.bin_centres
     # One map alone (a flat calibration) is drawn larger, so the figure is as wide as its title.
     fig, axes = _figure(calibration, 1, len(maps), panel_width=_PANEL_WIDTH if len(maps) > 1 else 6.0)
-    titles = {"flat": "vignetting correction (flat)", "centre": "unmixing to the centre (centre)"}
+    titles = {Mode.FLAT: "vignetting correction (flat)", Mode.CENTRE: "unmixing to the centre (centre)"}
     for ax, (mode, values) in zip(axes[0], maps.items(), strict=True):
         mesh = _map(ax, calibration, values, NOISE_CMAP, norm)
         levels = [v for v in _PENALTY_LEVELS if v < values.max()]
@@ -190,7 +197,9 @@ def normalised_references(
 
     Examples
     --------
-    >>> normalised_references(cal, "references.png", relative_to="white")  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> normalised_references(cal, "references.png", relative_to="white")
     PosixPath('references.png')
     """
     if relative_to not in ("centre", "white"):
@@ -252,7 +261,10 @@ def vignetting_centre_plot(
 
     Examples
     --------
-    >>> vignetting_centre_plot(cal, "centre.png", cra_corner_deg=26.6)  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> camera = make_camera("imx219", size=(320, 240), tilt=(2.0, 0.0))  # light 2 degrees off normal
+    >>> cal = picamcal.calibrate(**simulate_references(camera, seed=1))
+    >>> vignetting_centre_plot(cal, "centre.png", cra_corner_deg=26.6)
     PosixPath('centre.png')
     """
     check = check_vignetting_centre(calibration, cra_corner_deg=cra_corner_deg)
@@ -285,7 +297,9 @@ def dust_map(calibration: Calibration, path: str | os.PathLike[str], *, overwrit
 
     Examples
     --------
-    >>> dust_map(cal, "dust.png")  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> dust_map(cal, "dust.png")
     PosixPath('dust.png')
     """
     y, x = calibration.bin_centres

@@ -10,6 +10,7 @@ import numpy as np
 from ..calibration import Calibration
 from ..correct import correct, correct_processed, demosaic
 from ..errors import RawFormatError
+from ..modes import Mode
 from ..raw import read_raw
 from ..raw.processed import read_processed
 
@@ -19,17 +20,23 @@ def images_by_mode(
 ) -> dict[str, np.ndarray]:
     """Linear RGB images of one file, keyed by correction mode.
 
-    A raw file with a calibration gives every mode it has (``balance`` is the uncorrected image; a flat-field
-    calibration has no ``centre`` or ``pure``); without a
-    calibration, only ``uncorrected`` (black-subtracted, demosaiced, scaled so its 99th percentile is 1).
-    A processed file (JPEG, PNG, TIFF) gives ``uncorrected`` (linearised with ``input_encoding``) and, with
-    a calibration, the unmixing modes of :func:`picamcal.correct.correct_processed`.
+    A raw file with a calibration gives every mode it has (:attr:`picamcal.calibration.Calibration.modes`: a
+    flat-field calibration has no ``centre`` or ``pure``); without a calibration, only ``uncorrected``
+    (black-subtracted, demosaiced, scaled so its 99th percentile is 1). A processed file (JPEG, PNG, TIFF) gives
+    ``uncorrected`` (linearised with ``input_encoding``) and, with a calibration, the unmixing modes of
+    :func:`picamcal.correct.correct_processed`.
 
     Examples
     --------
-    >>> images = images_by_mode("target.dng", load_calibration("cal.npz"))  # doctest: +SKIP
-    >>> sorted(images)  # doctest: +SKIP
-    ['balance', 'centre', 'flat', 'pure']
+    >>> from picamcal.simulate import make_camera, simulate_references, simulate_target
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> cal = picamcal.calibrate(**simulate_references(camera, seed=1))
+    >>> path = picamcal.write_dng("target.dng", simulate_target(camera, seed=2)[0])
+    >>> images = images_by_mode(path, cal)
+    >>> sorted(images), images["centre"].shape
+    (['centre', 'flat', 'pure', 'uncorrected'], (240, 320, 3))
+    >>> list(images_by_mode(path))
+    ['uncorrected']
     """
     path = Path(path)
     try:
@@ -39,11 +46,11 @@ def images_by_mode(
             processed = read_processed(path, input_encoding)
         except RawFormatError:
             raise raw_error from None
-        images = {"uncorrected": processed.rgb}
+        images = {str(Mode.UNCORRECTED): processed.rgb}
         if calibration is not None and calibration.has_unmixing:  # a flat calibration has nothing to unmix with
-            images.update({mode: correct_processed(processed, calibration, mode) for mode in ("centre", "pure")})
+            images.update({str(m): correct_processed(processed, calibration, m) for m in Mode if m.needs_unmixing})
         return images
     if calibration is not None:
-        return {mode: correct(raw, calibration, mode) for mode in calibration.modes}
+        return {str(mode): correct(raw, calibration, mode) for mode in calibration.modes}
     rgb = demosaic(raw.black_subtracted(), raw.pattern)
-    return {"uncorrected": rgb / max(float(np.percentile(rgb, 99)), 1e-6)}
+    return {str(Mode.UNCORRECTED): rgb / max(float(np.percentile(rgb, 99)), 1e-6)}

@@ -27,6 +27,8 @@ from numpy.typing import ArrayLike
 from PIL import Image
 
 from .._atomic import atomic_path
+from ..bayer import block_mean
+from ..colour_wheel import CENTRE_WHEEL
 from ..errors import PicamcalError
 
 __all__ = [
@@ -45,7 +47,6 @@ _SRGB = colour.RGB_COLOURSPACES["sRGB"]
 # The white point of L*a*b* is the XYZ of RGB (1, 1, 1) through the sRGB matrix of IEC 61966-2-1, whose
 # chromaticity differs from the tabulated D65 by 2e-5; using it makes the calibration's white exactly neutral.
 _WHITE_XY = colour.XYZ_to_xy(_SRGB.matrix_RGB_to_XYZ @ np.ones(3))
-_REFERENCE_WHEEL = "centre"
 
 
 def linear_to_lab(rgb: ArrayLike) -> np.ndarray:
@@ -315,14 +316,14 @@ def wheel_figures(image: ArrayLike, layout: Mapping[str, Any], **kwargs: Any) ->
     0.0
     """
     colours = segment_colours(image, layout, **kwargs)
-    if _REFERENCE_WHEEL not in colours:
-        raise PicamcalError(f"the layout has no wheel named {_REFERENCE_WHEEL!r} to compare the others with")
-    others = [name for name in colours if name != _REFERENCE_WHEEL]
+    if CENTRE_WHEEL not in colours:
+        raise PicamcalError(f"the layout has no wheel named {CENTRE_WHEEL!r} to compare the others with")
+    others = [name for name in colours if name != CENTRE_WHEEL]
     if not others:
-        raise PicamcalError(f"the layout has no wheel other than {_REFERENCE_WHEEL!r} to compare")
+        raise PicamcalError(f"the layout has no wheel other than {CENTRE_WHEEL!r} to compare")
 
-    reference_lab = linear_to_lab(colours[_REFERENCE_WHEEL])
-    reference_hue, reference_saturation = hue_saturation(colours[_REFERENCE_WHEEL])
+    reference_lab = linear_to_lab(colours[CENTRE_WHEEL])
+    reference_hue, reference_saturation = hue_saturation(colours[CENTRE_WHEEL])
     wheels: dict[str, dict[str, Any]] = {}
     all_delta_e, all_ratio = [], []
     for name in others:
@@ -388,7 +389,9 @@ def flatness(image_or_plane: ArrayLike, *, bin_size: int | None = None) -> float
     if values.ndim not in (2, 3) or values.size == 0:
         raise PicamcalError(f"expected a non-empty (h, w) plane or (h, w, c) image, got shape {values.shape}")
     if bin_size is not None:
-        values = _block_mean(values, bin_size)
+        if int(bin_size) != bin_size or bin_size < 1:
+            raise PicamcalError(f"bin size must be a whole number of pixels >= 1, got {bin_size}")
+        values = block_mean(values, int(bin_size))
     samples = values.reshape(values.shape[0] * values.shape[1], -1)
     mean = samples.mean(axis=0)
     if np.any(~(mean > 0)):
@@ -454,10 +457,7 @@ def save_preview(
 
     Examples
     --------
-    >>> import tempfile
-    >>> with tempfile.TemporaryDirectory() as folder:
-    ...     out = save_preview(Path(folder) / "preview.png", np.ones((300, 200, 3)), max_size=100)
-    ...     Image.open(out).size
+    >>> Image.open(save_preview("preview.png", np.ones((300, 200, 3)), max_size=100)).size
     (67, 100)
     """
     values = np.asarray(linear, dtype=np.float64)
@@ -467,7 +467,7 @@ def save_preview(
         raise PicamcalError(f"max_size must be at least 1 pixel, got {max_size}")
     factor = math.ceil(max(values.shape[:2]) / max_size)
     if factor > 1:
-        values = _block_mean(values, factor)
+        values = block_mean(values, factor)
     picture = Image.fromarray(encode_srgb(values, exposure=exposure))
     target = Path(path)
     with atomic_path(target) as tmp:
@@ -530,15 +530,3 @@ def _segments(layout: Mapping[str, Any], margin_deg: float) -> list[tuple[str, f
             )
         segments.append((str(segment["name"]), start % 360.0, span))
     return segments
-
-
-def _block_mean(values: np.ndarray, block: int) -> np.ndarray:
-    """Mean over square blocks of ``block`` pixels from the top-left; partial blocks at the edges are kept."""
-    if int(block) != block or block < 1:
-        raise PicamcalError(f"bin size must be a whole number of pixels >= 1, got {block}")
-    block = int(block)
-    rows = np.arange(0, values.shape[0], block)
-    cols = np.arange(0, values.shape[1], block)
-    sums = np.add.reduceat(np.add.reduceat(values, rows, axis=0), cols, axis=1)
-    counts = np.outer(np.diff(np.append(rows, values.shape[0])), np.diff(np.append(cols, values.shape[1])))
-    return sums / counts.reshape(counts.shape + (1,) * (values.ndim - 2))

@@ -20,15 +20,17 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
 from .._json import Fields
+from ..calibration import Calibration
 from ..errors import PicamcalError
 from ..raw.model import RawImage, site_channels
+from ..raw.processed import ProcessedImage
 from ..sensors import LSC_GRIDS, SENSORS
 
 #: Largest gain each target's hardware can apply (exclusive): vc4 stores u4.10 (at most 16383 / 1024), the PiSP
@@ -36,6 +38,8 @@ from ..sensors import LSC_GRIDS, SENSORS
 GAIN_LIMITS = {"bcm2835": 16.0, "pisp": 8.0}
 #: libcamera clamps every colour matrix coefficient to this range (``Ccm::prepare``).
 CCM_LIMITS = (-8.0, 7.9999)
+#: The colour temperature (kelvin) libcamera's ALSC starts from when ``rpi.alsc`` gives no ``default_ct``.
+DEFAULT_CT = 4500.0
 
 
 class TuningError(PicamcalError):
@@ -158,7 +162,15 @@ def check_hardware_range(tuning: dict[str, Any], source: str | os.PathLike[str] 
 
     Examples
     --------
-    >>> check_hardware_range(export_tuning(cal, load_tuning("imx219.json")))  # doctest: +SKIP
+    >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
+    >>> tuning = load_tuning(stock_tuning_path("imx219", "pisp"))
+    >>> check_hardware_range(tuning)  # Raspberry Pi's own file: every gain within range
+    >>> tuning["algorithms"] = [{"rpi.alsc": {"luminance_lut": [9.0] * 1024}}]
+    >>> check_hardware_range(tuning)
+    Traceback (most recent call last):
+    ...
+    picamcal.export.isp.TuningError: rpi.alsc luminance gives a gain of 9, outside the pisp hardware's range of 0 \
+to 8 (it would be clipped): export with clip_gains (--clip-gains), or a smoother white
     """
     target = check_tuning(tuning, source)
     limit = GAIN_LIMITS[target]
@@ -241,8 +253,10 @@ def full_sensor_size(raw: RawImage) -> tuple[int, int]:
 
     Examples
     --------
-    >>> full_sensor_size(picamcal.read_raw("binned.dng"))  # doctest: +SKIP
-    (3280, 2464)
+    >>> from picamcal.simulate import make_camera, simulate_target
+    >>> raw, _ = simulate_target(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> full_sensor_size(raw)  # the simulator records its (small) sensor's size
+    (320, 240)
     """
     if raw.metadata.get("sensor_size"):
         width, height = raw.metadata["sensor_size"]
@@ -374,11 +388,37 @@ def _quantise(corner: np.ndarray, target: str) -> np.ndarray:
 
 
 def alsc_section(tuning: dict[str, Any]) -> dict[str, Any]:
-    """The ``rpi.alsc`` parameters of a tuning file."""
+    """The ``rpi.alsc`` parameters of a tuning file.
+
+    Raises
+    ------
+    PicamcalError
+        The file has no ``rpi.alsc`` section.
+
+    Examples
+    --------
+    >>> alsc_section({"algorithms": [{"rpi.alsc": {"default_ct": 5000}}]})
+    {'default_ct': 5000}
+    """
     for algorithm in tuning.get("algorithms", []):
         if "rpi.alsc" in algorithm:
             return algorithm["rpi.alsc"]
     raise PicamcalError("the tuning file has no rpi.alsc section")
+
+
+def default_ct(tuning: Mapping[str, Any]) -> float:
+    """The colour temperature a tuning file's static tables apply at: ``rpi.alsc`` ``default_ct``, else
+    :data:`DEFAULT_CT` (as libcamera's ALSC reads it).
+
+    Examples
+    --------
+    >>> default_ct({"algorithms": [{"rpi.alsc": {"default_ct": 5000}}]}), default_ct({"algorithms": []})
+    (5000.0, 4500.0)
+    """
+    for algorithm in tuning.get("algorithms", []):
+        if "rpi.alsc" in algorithm:
+            return float(algorithm["rpi.alsc"].get("default_ct", DEFAULT_CT))
+    return DEFAULT_CT
 
 
 def _table_at_ct(calibrations: list[dict[str, Any]], ct: float, size: int) -> np.ndarray:
@@ -401,7 +441,7 @@ def channel_tables(tuning: dict[str, Any], mode: SensorMode, ct: float | None = 
     target = tuning.get("target", "bcm2835")
     cols, rows = LSC_GRIDS[target]
     alsc = alsc_section(tuning)
-    ct = float(alsc.get("default_ct", 4500) if ct is None else ct)
+    ct = default_ct(tuning) if ct is None else float(ct)
     ry, rx = mode_resampling((cols, rows), mode)
 
     def resampled(flat: np.ndarray) -> np.ndarray:
@@ -436,7 +476,10 @@ def lens_shading_gains(
 
     Examples
     --------
-    >>> gains = lens_shading_gains(tuning, 3280, 2464)  # doctest: +SKIP
+    >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
+    >>> gains = lens_shading_gains(load_tuning(stock_tuning_path("imx219", "pisp")), 320, 240)
+    >>> gains.shape, bool(gains[120, 160, 1] < gains[0, 0, 1])  # more gain in the corners
+    ((240, 320, 3), True)
     """
     target = tuning.get("target", "bcm2835")
     mode = mode or SensorMode.full(width, height)
@@ -459,6 +502,13 @@ def isp_gains_for_image(
 
     The ISP applies the gains at the sensor mode's resolution and then scales its output; the gains
     are smooth, so they are computed for the mode (the full sensor, or ``crop``) and resampled to the image.
+
+    Examples
+    --------
+    >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
+    >>> tuning = load_tuning(stock_tuning_path("imx219", "pisp"))
+    >>> isp_gains_for_image(tuning, (640, 480), (320, 240)).shape  # a half-size output of the full sensor
+    (240, 320, 3)
     """
     mode = SensorMode(*sensor_size, crop or (0, 0, *sensor_size))
     gains = lens_shading_gains(tuning, mode.width, mode.height, mode=mode, ct=ct)
@@ -472,6 +522,11 @@ def tuning_black_level(tuning: dict[str, Any], bit_depth: int) -> float | None:
     """``rpi.black_level`` at ``bit_depth`` bits (the file stores it on a 16-bit scale), or None.
 
     A section without ``black_level`` means libcamera's default, 4096 (64 at 10 bits).
+
+    Examples
+    --------
+    >>> tuning_black_level({"algorithms": [{"rpi.black_level": {"black_level": 4096}}]}, 10)
+    64.0
     """
     for algorithm in tuning.get("algorithms", []):
         if "rpi.black_level" in algorithm:
@@ -480,7 +535,14 @@ def tuning_black_level(tuning: dict[str, Any], bit_depth: int) -> float | None:
 
 
 def tuning_ccm(tuning: dict[str, Any], ct: float) -> np.ndarray | None:
-    """The ``rpi.ccm`` matrix at colour temperature ``ct`` (linear in ct between entries), or None."""
+    """The ``rpi.ccm`` matrix at colour temperature ``ct`` (linear in ct between entries), or None.
+
+    Examples
+    --------
+    >>> ccms = [{"ct": 3000, "ccm": [2, -1, 0, 0, 1, 0, 0, 0, 1]}, {"ct": 6000, "ccm": [1, 0, 0, 0, 1, 0, 0, 0, 1]}]
+    >>> tuning_ccm({"algorithms": [{"rpi.ccm": {"ccms": ccms}}]}, 4500)[0]
+    array([ 1.5, -0.5,  0. ])
+    """
     for algorithm in tuning.get("algorithms", []):
         if "rpi.ccm" in algorithm:
             entries = algorithm["rpi.ccm"].get("ccms", [])
@@ -528,7 +590,12 @@ def apply_tuning(
 
     Examples
     --------
-    >>> rgb = apply_tuning(picamcal.read_raw("white.dng"), load_tuning("imx219.json"))  # doctest: +SKIP
+    >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> white = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)["white"]
+    >>> rgb = apply_tuning(white, load_tuning(stock_tuning_path("imx219", "pisp")), ccm=True)
+    >>> rgb.shape, rgb.dtype
+    ((240, 320, 3), dtype('float32'))
     """
     from ..correct import demosaic
 
@@ -538,7 +605,8 @@ def apply_tuning(
     levels = np.asarray(raw.black_level if black is None else (black,) * 4, dtype=np.float32)
     gains = lens_shading_gains(tuning, raw.width, raw.height, mode=mode, ct=ct)
     if colour_gains is None:
-        colour_gains = tuple(raw.metadata.get("colour_gains") or (1.0, 1.0))  # type: ignore[assignment]
+        red, blue = raw.metadata.get("colour_gains") or (1.0, 1.0)
+        colour_gains = (float(red), float(blue))
     balance = np.array([colour_gains[0], 1.0, colour_gains[1]], dtype=np.float32)
     mosaic = raw.bayer.astype(np.float32)
     for site, channel in enumerate(site_channels(raw.pattern)):
@@ -548,9 +616,78 @@ def apply_tuning(
         plane *= gains[sy::2, sx::2, channel] * balance[channel] / (raw.white_level - levels[site])
     rgb = demosaic(mosaic, raw.pattern)
     if ccm:
-        alsc_ct = float(alsc_section(tuning).get("default_ct", 4500) if ct is None else ct)
-        matrix = tuning_ccm(tuning, alsc_ct)
+        matrix = tuning_ccm(tuning, default_ct(tuning) if ct is None else ct)
         if matrix is None:
             raise PicamcalError("the tuning file has no rpi.ccm to apply")
         rgb = np.einsum("pq,yxq->yxp", matrix.astype(np.float32), rgb)
     return rgb
+
+
+class ProcessedInputs(TypedDict):
+    """What the ISP did to a processed image: the keyword arguments of :func:`picamcal.correct.correct_processed`."""
+
+    ccm: np.ndarray | None
+    isp_gains: np.ndarray
+    crop: tuple[int, int, int, int] | None
+
+
+def processed_inputs(
+    tuning: dict[str, Any],
+    calibration: Calibration,
+    image: ProcessedImage | np.ndarray,
+    *,
+    ct: float | None = None,
+    crop: tuple[int, int, int, int] | None = None,
+) -> ProcessedInputs:
+    """What the camera's ISP did to a processed image, from the tuning file it ran with, for ``correct_processed``.
+
+    The ISP applied the tuning file's static lens shading (``rpi.alsc``, emulated by
+    :func:`isp_gains_for_image` on the calibration's sensor, resampled to the image) and then its colour matrix
+    (``rpi.ccm``), both at the colour temperature ``ct``. :func:`picamcal.correct.correct_processed` divides out
+    the residual between those gains and the calibration's flat field, and undoes and re-applies the matrix
+    around the unmixing: ``correct_processed(image, cal, mode, **processed_inputs(tuning, cal, image))``, what
+    ``picamcal correct --processed --tuning FILE`` does for each image.
+
+    Parameters
+    ----------
+    tuning : dict
+        The libcamera tuning file the camera ran with (:func:`picamcal.export.tuning.load_tuning`).
+    calibration : Calibration
+        The calibration the image is corrected with: its size is the sensor's (the mode the ISP read).
+    image : ProcessedImage or ndarray (H, W, 3)
+        The processed image (only its size is used: the ISP scales its output).
+    ct : float, optional
+        Colour temperature in kelvin; default the tuning file's (:func:`default_ct`).
+    crop : (x, y, width, height), optional
+        The sensor area the image shows, in sensor pixels; default the whole sensor.
+
+    Returns
+    -------
+    ProcessedInputs
+        ``ccm`` (3 x 3, or None if the file has no ``rpi.ccm``), ``isp_gains`` (H, W, 3) and ``crop``.
+
+    Raises
+    ------
+    PicamcalError
+        The tuning file has no ``rpi.alsc`` section.
+
+    Examples
+    --------
+    >>> from picamcal.correct import correct_processed
+    >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> cal = picamcal.calibrate(**refs)
+    >>> tuning = load_tuning(stock_tuning_path("imx219", "pisp"))
+    >>> image = np.full((120, 160, 3), 0.25, np.float32)  # a half-size ISP output
+    >>> inputs = processed_inputs(tuning, cal, image)
+    >>> inputs["isp_gains"].shape, inputs["ccm"].shape
+    ((120, 160, 3), (3, 3))
+    >>> correct_processed(image, cal, "centre", **inputs).shape
+    (120, 160, 3)
+    """
+    height, width = image.rgb.shape[:2] if isinstance(image, ProcessedImage) else np.shape(image)[:2]
+    ct = default_ct(tuning) if ct is None else float(ct)
+    sensor = (calibration.width, calibration.height)
+    gains = isp_gains_for_image(tuning, sensor, (int(width), int(height)), crop=crop, ct=ct)
+    return {"ccm": tuning_ccm(tuning, ct), "isp_gains": gains, "crop": crop}

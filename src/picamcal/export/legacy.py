@@ -90,7 +90,11 @@ def legacy_table(calibration: Calibration) -> np.ndarray:
 
     Examples
     --------
-    >>> np.save("lst.npy", legacy_table(load_calibration("cal.npz")))  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> table = legacy_table(cal)
+    >>> table.shape, table.dtype, int(table.min())  # gain 1.0 (32) at the brightest point
+    ((4, 4, 6), dtype('uint8'), 32)
     """
     _, rows, cols = table_shape(calibration.width, calibration.height)
     planes = []
@@ -149,7 +153,15 @@ def apply_legacy_table(raw: RawImage, table: np.ndarray) -> np.ndarray:
 
     Examples
     --------
-    >>> flat = apply_legacy_table(picamcal.read_raw("white.jpg"), np.load("lst.npy"))  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> white = refs["white"]
+    >>> flat = apply_legacy_table(white, legacy_table(picamcal.calibrate(**refs)))
+    >>> def spread(mosaic):  # of one of the two green sites, relative to its mean
+    ...     green = mosaic[1::2, 0::2]
+    ...     return float(green.std() / green.mean())
+    >>> spread(flat) < 0.05 < spread(white.black_subtracted())
+    True
     """
     expected = table_shape(raw.width, raw.height)
     if table.shape != expected:
@@ -185,8 +197,10 @@ def is_legacy_table(path: str | os.PathLike[str]) -> bool:
 
     Examples
     --------
-    >>> is_legacy_table("lens_shading.npy")  # doctest: +SKIP
-    True
+    >>> save_legacy_table("lens_shading.npy", np.full((4, 4, 6), 32, np.uint8))
+    PosixPath('lens_shading.npy')
+    >>> is_legacy_table("lens_shading.npy"), is_legacy_table("missing.npy")
+    (True, False)
     """
     if not os.path.isfile(path):  # a FIFO would block np.load
         return False

@@ -23,7 +23,7 @@ from .._json import read_json
 from ..bayer import bin_edges
 from ..calibration import Calibration
 from ..errors import PicamcalWarning
-from ..sensors import find_sensor_name
+from ..sensors import LSC_GRIDS, find_sensor_name
 from .isp import GAIN_LIMITS, TuningError, check_hardware_range, check_tuning, table_to_pixels
 
 #: Where libcamera installs the stock tuning files on Raspberry Pi OS.
@@ -46,8 +46,8 @@ def load_tuning(path: str | os.PathLike[str]) -> dict[str, Any]:
 
     Examples
     --------
-    >>> tuning = load_tuning("/usr/share/libcamera/ipa/rpi/vc4/imx219.json")  # doctest: +SKIP
-    >>> tuning["target"]  # doctest: +SKIP
+    >>> tuning = load_tuning(stock_tuning_path("imx219", "bcm2835"))  # on a Pi: /usr/share/libcamera/ipa/rpi/vc4/...
+    >>> tuning["target"]
     'bcm2835'
     """
     path = Path(path)
@@ -95,6 +95,56 @@ def stock_tuning_path(sensor: str, target: str) -> Path:
         f"{', '.join(bundled_tuning_sensors(target))}, and this is not a Raspberry Pi with libcamera's own in "
         f"{STOCK_TUNING_DIR}; give the sensor's tuning file with --base"
     )
+
+
+def neutral_tuning(stock: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a libcamera tuning with a static unity lens shading table, so nothing adapts the shading.
+
+    What :class:`~picamcal.acquire.cameras.Picamera2Camera` opens the camera with to capture references:
+    ``rpi.alsc`` gets ``n_iter`` 0, unity ``calibrations_Cr`` and ``calibrations_Cb`` tables and a unity
+    ``luminance_lut`` (the target's grid, :data:`picamcal.sensors.LSC_GRIDS`), and loses ``corner_strength``;
+    everything else is kept. Exposure and white balance are frozen by explicit controls instead.
+
+    Parameters
+    ----------
+    stock : dict
+        The sensor's stock tuning (``Picamera2.load_tuning_file("imx219.json")``); never modified.
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    TuningError
+        ``stock`` is not a tuning libcamera would load (:func:`~picamcal.export.isp.check_tuning`).
+
+    Examples
+    --------
+    >>> stock = {"version": 2.0, "target": "bcm2835", "algorithms": [{"rpi.alsc": {"n_iter": 100}}]}
+    >>> alsc = neutral_tuning(stock)["algorithms"][0]["rpi.alsc"]
+    >>> alsc["n_iter"], len(alsc["luminance_lut"]), set(alsc["calibrations_Cr"][0]["table"])
+    (0, 192, {1.0})
+    """
+    target = check_tuning(stock, "the stock tuning")
+    columns, rows = LSC_GRIDS[target]
+    unity = [1.0] * (columns * rows)
+    tuning = copy.deepcopy(stock)
+    algorithms = tuning["algorithms"]
+    entry = next((a for a in algorithms if "rpi.alsc" in a), None)
+    if entry is None:
+        entry = {"rpi.alsc": {}}
+        algorithms.append(entry)
+    alsc = entry["rpi.alsc"]
+    alsc.pop("corner_strength", None)
+    alsc.update(
+        n_iter=0,
+        luminance_strength=1.0,
+        luminance_lut=list(unity),
+        calibrations_Cr=[{"ct": 4500, "table": list(unity)}],
+        calibrations_Cb=[{"ct": 4500, "table": list(unity)}],
+    )
+    return tuning
 
 
 def _bin_average(n_pixels: int, bin_size: int) -> np.ndarray:
@@ -204,8 +254,8 @@ def _ccm_from_calibration(calibration: Calibration) -> list[float]:
 
     A flat-field calibration (white only) has no colour response: CalibrationFileError, one line with the fix.
     """
-    calibration.require_unmixing("--ccm (the colour matrix)")
-    return [round(float(v), 5) for v in calibration.colour_response_inverse.ravel()]
+    cx = calibration.require_unmixing("--ccm (the colour matrix)").colour_response_inverse
+    return [round(float(v), 5) for v in cx.ravel()]
 
 
 def _set_algorithm(algorithms: list[dict[str, Any]], name: str, params: dict[str, Any], after: str) -> bool:
@@ -257,7 +307,12 @@ def export_tuning(
 
     Examples
     --------
-    >>> tuning = export_tuning(load_calibration("cal.npz"), load_tuning("imx219.json"), ccm=True)  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> tuning = export_tuning(cal, load_tuning(stock_tuning_path("imx219", "pisp")), ccm=True)
+    >>> alsc = next(a["rpi.alsc"] for a in tuning["algorithms"] if "rpi.alsc" in a)
+    >>> alsc["n_iter"], len(alsc["luminance_lut"])  # a static 32 x 32 table on a Pi 5
+    (0, 1024)
     """
     target = check_tuning(base)
     if isinstance(ct, bool) or not isinstance(ct, (int, float)) or not math.isfinite(ct) or ct < 1:
@@ -272,7 +327,7 @@ def export_tuning(
     tables = alsc_tables(calibration, target, luminance_strength=luminance_strength, clip_gains=clip_gains)
     tuning = copy.deepcopy(base)
     algorithms = tuning["algorithms"]
-    alsc = next((copy.deepcopy(a["rpi.alsc"]) for a in algorithms if "rpi.alsc" in a), {})
+    alsc: dict[str, Any] = next((copy.deepcopy(a["rpi.alsc"]) for a in algorithms if "rpi.alsc" in a), {})
     alsc.pop("corner_strength", None)
     alsc.update(
         {
@@ -286,7 +341,7 @@ def export_tuning(
     if _set_algorithm(algorithms, "rpi.alsc", alsc, after="rpi.agc"):
         warnings.warn("the base tuning file had no rpi.alsc section; added one", PicamcalWarning, stacklevel=2)
     if ccm:
-        section = next((copy.deepcopy(a["rpi.ccm"]) for a in algorithms if "rpi.ccm" in a), {})
+        section: dict[str, Any] = next((copy.deepcopy(a["rpi.ccm"]) for a in algorithms if "rpi.ccm" in a), {})
         section["ccms"] = [{"ct": int(ct), "ccm": _ccm_from_calibration(calibration)}]
         _set_algorithm(algorithms, "rpi.ccm", section, after="rpi.contrast")
     check_hardware_range(tuning)
@@ -309,7 +364,10 @@ def save_tuning(path: str | os.PathLike[str], tuning: dict[str, Any], overwrite:
 
     Examples
     --------
-    >>> save_tuning("imx219_pisp.json", export_tuning(cal, load_tuning("imx219.json")))  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> save_tuning("imx219_pisp.json", export_tuning(cal, load_tuning(stock_tuning_path("imx219", "pisp"))))
+    PosixPath('imx219_pisp.json')
     """
     path = Path(path)
     check_hardware_range(tuning)

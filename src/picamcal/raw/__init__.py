@@ -1,7 +1,9 @@
 """Raw image formats behind one function, :func:`read_raw`.
 
-Each format lives in its own module (``dng``, ``brcm``, ``picamera2``, ``headless``, ``npz``); nothing outside
-that module knows its byte layout.
+Each format lives in its own module or package (``dng``, ``brcm``, ``picamera2``, ``headless``, ``npz``), its
+signature recognition included; nothing outside it knows its byte layout. ``model`` holds the :class:`RawImage`
+they all return and the checks they share, ``packing`` the CSI-2 bit packing, ``npy`` the careful reading of file
+heads and ``.npy`` arrays, ``verify`` the checks of what a file declares against its data.
 """
 
 from __future__ import annotations
@@ -14,28 +16,19 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import PicamcalWarning, RawFormatError
-from ..sensors import black_level_at, find_sensor_name, get_sensor
-from .brcm import is_jpeg, read_brcm, write_brcm
+from ..sensors import find_sensor_name
+from .brcm import is_brcm, is_jpeg, read_brcm, write_brcm
 from .dng import is_dng, read_dng, write_dng
-from .headless import headless_hint, read_headless
-from .model import PATTERNS, RawImage, given_black_level, site_channels
-from .npy import file_head
-from .npz import read_npz, write_npz
-from .picamera2 import (
-    from_picamera2,
-    is_npy,
-    read_picamera2_npy,
-    require_colour_sensor,
-    to_picamera2,
-    write_picamera2_npy,
-)
+from .headless import HEADLESS_SUFFIXES, headless_hint, read_headless
+from .model import PATTERNS, RawImage, given_black_level, require_colour_sensor, sensor_black_level, site_channels
+from .npy import file_head, is_npy
+from .npz import is_npz, read_npz, write_npz
+from .picamera2 import from_picamera2, read_picamera2_npy, to_picamera2, write_picamera2_npy
 from .verify import check_metadata
 
 #: File suffixes of the raw formats a folder is searched for (``read_raw`` tells them apart by content; a ``.raw`` or
 #: ``.bin`` headless dump needs its sensor and size given, so folders of raw images do not include them).
 RAW_SUFFIXES = (".dng", ".jpg", ".jpeg", ".npy", ".npz")
-#: Headless ``rpicam-raw`` dumps: read with the sensor, mode and size given (:func:`read_headless`).
-HEADLESS_SUFFIXES = (".raw", ".bin")
 #: Processed (ISP output) images: :func:`picamcal.raw.processed.read_processed`.
 PROCESSED_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 
@@ -151,13 +144,19 @@ def read_raw(
 
     Examples
     --------
-    >>> import picamcal
-    >>> raw = picamcal.read_raw("white.dng")  # doctest: +SKIP
-    >>> raw.bayer.shape, raw.pattern  # doctest: +SKIP
-    ((2464, 3280), 'BGGR')
-    >>> dump = picamcal.read_raw("video.raw", raw_format="SRGGB12_CSI2P", size=(4056, 3040), frame=3)  # doctest: +SKIP
-    >>> dump.metadata["frames"], dump.sensor, dump.black_level[0]  # doctest: +SKIP
-    (12, None, nan)
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> white = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)["white"]
+    >>> _ = write_dng("white.dng", white)
+    >>> raw = read_raw("white.dng")
+    >>> raw.bayer.shape, raw.pattern, raw.metadata["format"]
+    ((240, 320), 'BGGR', 'dng')
+
+    The same frame as a headless dump (rpicam-raw's bytes, nothing else) of a sensor it is not told:
+
+    >>> _ = Path("video.raw").write_bytes(to_picamera2(white)[0].tobytes())
+    >>> dump = read_raw("video.raw", raw_format="SBGGR10_CSI2P", size=(320, 240))
+    >>> dump.metadata["frames"], dump.sensor, dump.black_level[0]
+    (1, None, nan)
     """
     path = Path(path)
     if sensor is not None and not isinstance(sensor, str):
@@ -201,17 +200,16 @@ def _with_sensor(raw: RawImage, sensor: str) -> RawImage:
     meta = {**raw.metadata, "sensor_known": name is not None}
     black = raw.black_level
     if name is not None and not all(math.isfinite(b) for b in black):
-        black = (black_level_at(get_sensor(name), raw.bit_depth),) * 4
-        meta["black_level_source"] = "registry"
+        black, meta["black_level_source"] = sensor_black_level(name, raw.bit_depth)
     return dataclasses.replace(raw, sensor=name or sensor, black_level=black, metadata=meta)
 
 
 def _read_by_signature(path: Path, head: bytes, expected_shape: tuple[int, int] | None) -> RawImage:
     if is_dng(head):
         return read_dng(path, expected_shape=expected_shape)
-    if is_jpeg(head) or head.startswith(b"BRCM"):
+    if is_brcm(head):
         return read_brcm(path, expected_shape=expected_shape)
-    if head.startswith(b"PK"):
+    if is_npz(head):
         return read_npz(path, expected_shape=expected_shape)
     if is_npy(head):
         return read_picamera2_npy(path, expected_shape=expected_shape)
@@ -234,8 +232,10 @@ def override(
 
     Examples
     --------
-    >>> override(raw, pattern="BGGR", black_level=64).pattern  # doctest: +SKIP
-    'BGGR'
+    >>> raw = RawImage(np.full((4, 4), 100, np.uint16), "GBRG", 0, 1023, 10, "imx219")
+    >>> fixed = override(raw, pattern="BGGR", black_level=64)
+    >>> fixed.pattern, fixed.black_level, fixed.metadata
+    ('BGGR', (64.0, 64.0, 64.0, 64.0), {'declared_pattern': 'GBRG', 'declared_black_level': [0.0, 0.0, 0.0, 0.0]})
     """
     meta = dict(raw.metadata)
     if pattern is not None and pattern != raw.pattern:

@@ -38,16 +38,15 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from .._atomic import atomic_path
-from ..errors import PicamcalWarning, RawFormatError, short
+from ..errors import PicamcalWarning, RawFormatError, one_line, short
 from ..limits import check_size, require_regular_file
 from ..sensors import SENSORS, LegacyMode, Sensor, black_level_at, find_sensor_name
 from .model import PATTERNS, RawImage, site_channels
 from .packing import pack, packed_row_bytes, unpack
 
 HEADER_SIZE = 32768
+#: What every block starts with (the HQ camera's firmware writes ``BRCMo``: :attr:`Sensor.legacy_ident`).
 _IDENT = b"BRCM"
-#: The HQ camera's firmware writes ``BRCMo``; the others plain ``BRCM``.
-_IDENT_BY_SENSOR = {"imx477": b"BRCMo"}
 _FIELDS = struct.Struct("<32s4H6I2H2B")
 _FIELDS_OFFSET = 0xB0
 _FORMAT_BAYER = 33  # VC_IMAGE_BAYER (raspberrypi/userland vc_image_types.h, as LibRaw cites it)
@@ -55,8 +54,6 @@ _BAYER_FORMAT_BITS = {2: 8, 3: 10, 4: 12, 5: 14, 6: 16}  # VC_IMAGE_BAYER_RAW8 .
 _BAYER_FORMAT_CODE = {bits: code for code, bits in _BAYER_FORMAT_BITS.items()}
 _STRIDE_ALIGN = 32
 _BAYER_ORDERS = ("RGGB", "GBRG", "BGGR", "GRBG")  # header bayer_order code -> pattern
-#: EXIF models of early firmware that do not name the sensor.
-_MODEL_ALIASES = {"testc": "ov5647"}
 #: How far from the end to look for a ``BRCM`` block of unknown size when diagnosing a file, and in what chunks.
 _DIAGNOSE_WINDOW = 64 << 20
 _DIAGNOSE_CHUNK = 1 << 20
@@ -74,6 +71,17 @@ def is_jpeg(head: bytes) -> bool:
     (True, False)
     """
     return head[:3] == b"\xff\xd8\xff"
+
+
+def is_brcm(head: bytes) -> bool:
+    """True if the first bytes of a file may be a legacy raw file: a JPEG (its raw block is at its end) or a block.
+
+    Examples
+    --------
+    >>> is_brcm(b"\\xff\\xd8\\xff\\xe1"), is_brcm(b"BRCMo"), is_brcm(b"II*\\x00")
+    (True, True, False)
+    """
+    return is_jpeg(head) or head.startswith(_IDENT)
 
 
 def _legacy_modes() -> Iterator[tuple[Sensor, LegacyMode]]:
@@ -117,9 +125,11 @@ def _describe(mode: LegacyMode) -> str:
 
 
 def _sensor_from_model(model: str | None) -> str | None:
+    """The registry sensor an EXIF ``Model`` (or a raw header's name) means, early firmware's aliases included."""
     name = find_sensor_name(model)
     if name is None and model:
-        name = next((s for alias, s in _MODEL_ALIASES.items() if alias in model.lower()), None)
+        lowered = model.lower()
+        name = next((s.name for s in SENSORS.values() for alias in s.legacy_aliases if alias in lowered), None)
     return name
 
 
@@ -141,7 +151,7 @@ def _maker_note(value: Any, problems: list[str]) -> dict[str, Any]:
     ``problems`` and left out. A gain of ``ag=-1`` or ``ag=0`` is the firmware's "not known" and left out quietly.
     """
     text = value.decode("latin-1") if isinstance(value, bytes) else str(value)
-    text = _one_line(text)
+    text = one_line(text)
     meta: dict[str, Any] = {"maker_note": text}
     fields = dict(re.findall(r"(?<![\w.])([a-z_]+)=(-?[0-9.]{1,32})(?![0-9.])", text))
     gain = _rational(_float(fields.get("ag")))
@@ -218,12 +228,7 @@ def _exif_text(value: Any, name: str, problems: list[str]) -> str | None:
     if not isinstance(value, str):
         problems.append(f"EXIF {name} {short(value)} is not text")
         return None
-    return _one_line(value) or None
-
-
-def _one_line(text: str) -> str:
-    """Text from a file, fit for a one-line message: control characters and NULs as spaces, trimmed."""
-    return "".join(c if c.isprintable() else " " for c in text).strip()
+    return one_line(value) or None
 
 
 def _header_fields(f: BinaryIO, start: int) -> dict[str, Any] | None:
@@ -233,7 +238,7 @@ def _header_fields(f: BinaryIO, start: int) -> dict[str, Any] | None:
         return None
     name, width, height, pad_right, pad_down, *_unused, transform, fmt, order, bayer_format = _FIELDS.unpack(data)
     return {
-        "name": _one_line(name.split(b"\x00", 1)[0].decode("latin-1")),
+        "name": one_line(name.split(b"\x00", 1)[0].decode("latin-1")),
         "width": width,
         "height": height,
         "padding_right": pad_right,
@@ -367,9 +372,11 @@ def read_brcm(path: str | os.PathLike[str], *, expected_shape: Sequence[int] | N
 
     Examples
     --------
-    >>> raw = read_brcm("white.jpg")  # doctest: +SKIP
-    >>> raw.sensor, raw.pattern, raw.bayer.shape, raw.black_level[0]  # doctest: +SKIP
-    ('imx219', 'BGGR', (2464, 3280), 64.0)
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> _ = write_brcm("white.jpg", simulate_references(make_camera("imx219", size=(640, 480)), seed=1)["white"])
+    >>> raw = read_brcm("white.jpg")
+    >>> raw.sensor, raw.pattern, raw.bayer.shape, raw.black_level[0], raw.metadata["legacy_mode"]["modes"]
+    ('imx219', 'BGGR', (480, 640), 64.0, [7])
     """
     path = Path(path)
     require_regular_file(path)
@@ -420,7 +427,7 @@ def read_brcm(path: str | os.PathLike[str], *, expected_shape: Sequence[int] | N
     return RawImage(bayer, pattern, (black,) * 4, (1 << mode.bit_depth) - 1, mode.bit_depth, sensor.name, meta)
 
 
-def _read_pixels(f: BinaryIO, start: int, mode: LegacyMode, header: dict[str, Any], path: Path) -> np.ndarray:
+def _read_pixels(f: io.BufferedIOBase, start: int, mode: LegacyMode, header: dict[str, Any], path: Path) -> np.ndarray:
     if header["bayer_order"] >= len(_BAYER_ORDERS):
         raise RawFormatError(f"unknown Bayer order code {header['bayer_order']} in the raw header (expected 0-3)", path)
     if header["format"] != _FORMAT_BAYER:
@@ -443,7 +450,7 @@ def _read_pixels(f: BinaryIO, start: int, mode: LegacyMode, header: dict[str, An
         )
     buffer = np.empty(mode.height * stride, dtype=np.uint8)
     f.seek(start + HEADER_SIZE)
-    if f.readinto(memoryview(buffer)) != buffer.size:
+    if f.readinto(buffer.data) != buffer.size:
         raise RawFormatError("truncated file: the raw rows end early", path)
     return unpack(buffer.reshape(mode.height, stride), mode.width, mode.bit_depth)
 
@@ -466,7 +473,7 @@ def _find_mode(raw: RawImage, path: Path) -> tuple[Sensor, LegacyMode]:
 
 def _header(sensor: Sensor, mode: LegacyMode, raw: RawImage, padding_right: int) -> bytes:
     header = bytearray(HEADER_SIZE)
-    ident = _IDENT_BY_SENSOR.get(sensor.name, _IDENT)
+    ident = sensor.legacy_ident.encode("ascii")
     header[: len(ident)] = ident
     name = raw.metadata.get("header_name")
     name = name if isinstance(name, str) and name else sensor.name
@@ -557,9 +564,16 @@ def write_brcm(path: str | os.PathLike[str], raw: RawImage, *, overwrite: bool =
 
     Examples
     --------
-    >>> from picamcal.simulate import simulate_references  # doctest: +SKIP
-    >>> write_brcm("white.jpg", simulate_references("imx219")["white"])  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> white = simulate_references(make_camera("imx219", size=(640, 480)), seed=1)["white"]  # sensor mode 7
+    >>> write_brcm("white.jpg", white)
     PosixPath('white.jpg')
+    >>> Path("white.jpg").stat().st_size - 445440 > 0  # a JPEG preview, then the mode's 445440-byte raw block
+    True
+    >>> write_brcm("white.jpg", simulate_references(make_camera("imx219", size=(320, 240)), seed=1)["white"])
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.RawFormatError: white.jpg: 320x240 10-bit is not a legacy raw mode of the imx219 (modes: ...)
     """
     path = Path(path)
     sensor, mode = _find_mode(raw, path)

@@ -28,21 +28,22 @@ import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import RawFormatError
 from ..limits import check_size
-from ..sensors import SENSORS, black_level_at, find_sensor_name, get_sensor
-from .model import RawImage, given_black_level
+from ..sensors import SENSORS, find_sensor_name, get_sensor
+from .model import RawImage, given_black_level, require_colour_sensor, sensor_black_level
 from .npy import file_head
-from .picamera2 import RawFormat, from_picamera2, max_stride, parse_raw_format, require_colour_sensor
+from .picamera2.convert import from_picamera2
+from .picamera2.formats import PISP_ALIGN, UNICAM_ALIGN, RawFormat, max_stride, parse_raw_format
 
-__all__ = ["default_strides", "headless_hint", "read_headless"]
+__all__ = ["HEADLESS_SUFFIXES", "default_strides", "headless_hint", "read_headless"]
 
-#: Row alignment in bytes of the Pi 4 and earlier (Unicam) and of the Pi 5 (PiSP front end).
-UNICAM_ALIGN = 32
-PISP_ALIGN = 64
+#: The suffixes of headless dumps: read with the sensor, mode and size given (:func:`read_headless`).
+HEADLESS_SUFFIXES = (".raw", ".bin")
 
 
 def default_strides(spec: RawFormat, width: int) -> list[tuple[int, str]]:
@@ -123,9 +124,19 @@ def read_headless(
 
     Examples
     --------
-    >>> raw = read_headless("dump.raw", "SBGGR10_CSI2P", (3280, 2464), frame=2, sensor="imx219")  # doctest: +SKIP
-    >>> raw.metadata["frames"], raw.black_level[0]  # doctest: +SKIP
-    (10, 64.0)
+    Three simulated frames dumped as a Pi 4 writes them (CSI-2 packed, rows padded to 32 bytes), then the third:
+
+    >>> from picamcal.raw import to_picamera2
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> with open("dump.raw", "wb") as f:
+    ...     for role in ("white", "red", "green"):
+    ...         _ = f.write(to_picamera2(refs[role])[0].tobytes())
+    >>> raw = read_headless("dump.raw", "SBGGR10_CSI2P", (320, 240), frame=2, sensor="imx219")
+    >>> raw.metadata["frames"], raw.metadata["stride"], raw.black_level[0]
+    (3, 416, 64.0)
+    >>> bool(np.array_equal(raw.bayer, refs["green"].bayer))
+    True
     """
     path = Path(path)
     spec = parse_raw_format(raw_format, path)
@@ -152,12 +163,15 @@ def read_headless(
         data = np.fromfile(f, dtype=np.uint8, count=frame_bytes)
     if data.size != frame_bytes:
         raise RawFormatError(f"truncated while reading: frame {index} ends after {data.size} bytes", path)
-    config = {"format": spec.name, "size": (width, height), "stride": row_stride}
+    config: dict[str, Any] = {"format": spec.name, "size": (width, height), "stride": row_stride}
     if name is not None:
         config = {"raw": config, "sensor": {"bit_depth": get_sensor(name).bit_depth}}
     decoded = from_picamera2(data, config, {}, source=path)
-    black, black_source = _black_level(given_black, name, decoded.bit_depth)
-    meta = {
+    if given_black is None:
+        black, black_source = sensor_black_level(name, decoded.bit_depth)
+    else:
+        black, black_source = given_black, "given"
+    meta: dict[str, Any] = {
         "format": "headless",
         "path": str(path),
         "raw_format": spec.name,
@@ -185,7 +199,8 @@ def headless_hint(path: str | os.PathLike[str]) -> str:
 
     Examples
     --------
-    >>> headless_hint("frame00001.raw")  # doctest: +SKIP
+    >>> _ = Path("frame00001.raw").write_bytes(bytes(1000))
+    >>> headless_hint("frame00001.raw")
     '; a headless dump (rpicam-raw)? give --raw-format NAME and --size WIDTHxHEIGHT'
     """
     path = Path(path)
@@ -206,7 +221,7 @@ def headless_hint(path: str | os.PathLike[str]) -> str:
                         f"dump? give --raw-format {packed.replace(entry.default_pattern or '', '<order>')} "
                         f"--size {entry.width}x{entry.height}"
                     )
-    if path.suffix.lower() in (".raw", ".bin"):
+    if path.suffix.lower() in HEADLESS_SUFFIXES:
         return "; a headless dump (rpicam-raw)? give --raw-format NAME and --size WIDTHxHEIGHT"
     return ""
 
@@ -266,13 +281,3 @@ def _choose_stride(
         f"(stride {expected} bytes, {source}{tried}): check --raw-format, --size and --stride",
         path,
     )
-
-
-def _black_level(
-    given: float | Sequence[float] | None, name: str | None, bit_depth: int
-) -> tuple[float | Sequence[float], str]:
-    if given is not None:
-        return given, "given"
-    if name is not None:
-        return black_level_at(get_sensor(name), bit_depth), "registry"
-    return math.nan, "none"

@@ -1,18 +1,60 @@
-"""The raw image model shared by every format reader and writer."""
+"""The raw image model shared by every format reader and writer, and the checks they share."""
 
 from __future__ import annotations
 
 import math
+import numbers
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..errors import RawFormatError
+from ..sensors import black_level_at, get_sensor
 
 PATTERNS = ("RGGB", "GBRG", "BGGR", "GRBG")
 CHANNELS = "RGB"
+
+
+def _finite(value: Any) -> bool:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer beyond any float
+        return False
+
+
+def _positive(value: Any) -> bool:
+    return _finite(value) and value > 0
+
+
+def _whole_number(value: Any) -> bool:
+    return _finite(value) and isinstance(value, numbers.Integral)
+
+
+def _numbers_of(length: int, each: Callable[[Any], bool]) -> Callable[[Any], bool]:
+    return lambda value: isinstance(value, (list, tuple)) and len(value) == length and all(each(v) for v in value)
+
+
+#: What picamcal's readers put under each ``RawImage.metadata`` key that code downstream uses, as (what it is,
+#: test): the DNG reader checks picamcal's recorded JSON against it, the DNG writer the values it writes as tags.
+METADATA_KINDS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "sensor": ("a sensor name", lambda v: isinstance(v, str)),
+    **{key: ("text", lambda v: isinstance(v, str)) for key in ("make", "model", "timestamp")},
+    **{
+        key: ("a positive number", _positive)
+        for key in ("exposure_time_s", "analogue_gain", "digital_gain", "colour_temperature")
+    },
+    "lux": ("a number of at least 0", lambda v: _finite(v) and v >= 0),
+    "iso": ("a positive whole number", lambda v: _positive(v) and _whole_number(v)),
+    "sensor_timestamp_ns": ("a whole number", _whole_number),
+    "colour_gains": ("2 positive numbers", _numbers_of(2, _positive)),
+    "colour_correction_matrix": ("9 finite numbers", _numbers_of(9, _finite)),
+    "sensor_size": ("2 positive whole numbers", _numbers_of(2, lambda v: _positive(v) and _whole_number(v))),
+}
 
 
 def site_channels(pattern: str) -> np.ndarray:
@@ -127,6 +169,43 @@ class RawImage:
         return out
 
 
+def sensor_black_level(sensor: str | None, bit_depth: int) -> tuple[tuple[float, float, float, float], str]:
+    """The black level of each 2x2 site for a file that records none, and where it came from.
+
+    A registry sensor's level at ``bit_depth`` bits (``"registry"``), else unknown: NaN (``"none"``), never 0;
+    the error comes where a black level is needed (:func:`require_black_level`).
+
+    Examples
+    --------
+    >>> sensor_black_level("imx477", 10)
+    ((64.0, 64.0, 64.0, 64.0), 'registry')
+    >>> sensor_black_level(None, 10)
+    ((nan, nan, nan, nan), 'none')
+    """
+    if sensor is None:
+        return (math.nan,) * 4, "none"
+    return (black_level_at(get_sensor(sensor), bit_depth),) * 4, "registry"
+
+
+def require_colour_sensor(name: str | None, source: str | os.PathLike[str]) -> None:
+    """Raise if the registry knows ``name`` as a monochrome sensor: there is no colour to calibrate.
+
+    Examples
+    --------
+    >>> require_colour_sensor("imx219", "white.raw")
+    >>> require_colour_sensor("ov9281", "dark.raw")
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.RawFormatError: dark.raw: the OV9281 is a monochrome sensor: picamcal calibrates colour ...
+    """
+    if name is not None and get_sensor(name).monochrome:
+        raise RawFormatError(
+            f"the {name.upper()} is a monochrome sensor: picamcal calibrates colour Bayer sensors, and a monochrome "
+            "sensor has no colour crosstalk to unmix",
+            source,
+        )
+
+
 def given_black_level(value: Any, source: str | os.PathLike[str] | None = None) -> tuple[float, float, float, float]:
     """A black level the user gave (``--black-level``, ``black_level=``), checked: 1 or 4 finite numbers >= 0.
 
@@ -163,7 +242,7 @@ def _black_levels(value: Any, what: str) -> tuple[float, float, float, float]:
         levels = np.repeat(levels, 4)
     if levels.size != 4 or np.isinf(levels).any() or (levels < 0).any():
         raise RawFormatError(f"{what} {_text(value)}: a black level is 1 or 4 finite numbers >= 0 (DN)")
-    return tuple(float(b) for b in levels)  # type: ignore[return-value]
+    return float(levels[0]), float(levels[1]), float(levels[2]), float(levels[3])
 
 
 def _whole(value: Any, what: str, low: int, high: int) -> int:

@@ -19,7 +19,8 @@ from typing import IO, Any
 import numpy as np
 
 from .._atomic import atomic_path
-from ..errors import RawFormatError
+from .._json import MAX_JSON_BYTES
+from ..errors import RawFormatError, exception_detail
 from ..limits import check_size, require_regular_file
 from ..records import json_default
 from .model import RawImage
@@ -29,12 +30,24 @@ FORMAT_NAME = "picamcal-raw"
 VERSION = 1
 
 
+def is_npz(head: bytes) -> bool:
+    """True if the first bytes of a file are a zip archive's (an ``.npz`` is one); :func:`read_npz` checks the rest.
+
+    Examples
+    --------
+    >>> is_npz(b"PK\\x03\\x04"), is_npz(b"\\x93NUMPY")
+    (True, False)
+    """
+    return head.startswith(b"PK")
+
+
 def write_npz(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = True) -> Path:
     """Save a RawImage losslessly as a picamcal raw ``.npz`` (compressed, written atomically).
 
     Examples
     --------
-    >>> write_npz("frame.npz", raw)  # doctest: +SKIP
+    >>> write_npz("frame.npz", RawImage(np.full((4, 6), 300, np.uint16), "RGGB", 256, 4095, 12, "imx477"))
+    PosixPath('frame.npz')
     """
     path = Path(path)
     record = {
@@ -57,8 +70,10 @@ def is_raw_npz(path: str | os.PathLike[str]) -> bool:
 
     Examples
     --------
-    >>> is_raw_npz("frame.npz"), is_raw_npz("cal.npz")  # doctest: +SKIP
-    (True, False)
+    >>> _ = write_npz("frame.npz", RawImage(np.full((4, 6), 300, np.uint16), "RGGB", 256, 4095, 12, "imx477"))
+    >>> np.savez("cal.npz", unmixing=np.eye(3))
+    >>> is_raw_npz("frame.npz"), is_raw_npz("cal.npz"), is_raw_npz("missing.npz")
+    (True, False, False)
     """
     try:
         with zipfile.ZipFile(path) as archive:
@@ -93,8 +108,14 @@ def read_npz(path: str | os.PathLike[str], *, expected_shape: tuple[int, int] | 
 
     Examples
     --------
-    >>> read_npz("frame.npz").pattern  # doctest: +SKIP
-    'BGGR'
+    >>> _ = write_npz("frame.npz", RawImage(np.full((4, 6), 300, np.uint16), "RGGB", 256, 4095, 12, "imx477"))
+    >>> raw = read_npz("frame.npz")
+    >>> raw.bayer.shape, raw.pattern, raw.black_level[0], raw.sensor, raw.metadata["format"]
+    ((4, 6), 'RGGB', 256.0, 'imx477', 'npz')
+    >>> read_npz("frame.npz", expected_shape=(240, 320))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.CalibrationFileError: frame.npz: image does not match the calibration: size 6x4, ...
     """
     path = Path(path)
     require_regular_file(path)
@@ -136,7 +157,6 @@ _ZIP_ERRORS = (
     EOFError,
     ValueError,
 )
-_MAX_RECORD_BYTES = 16 << 20
 
 
 @contextlib.contextmanager
@@ -145,9 +165,7 @@ def _reading(path: Path, what: str) -> Iterator[None]:
     try:
         yield
     except _ZIP_ERRORS as exc:
-        detail = " ".join(str(exc).split())
-        detail = detail if len(detail) <= 80 else detail[:77] + "..."
-        raise RawFormatError(f"corrupt picamcal raw file ({what}: {type(exc).__name__}: {detail})", path) from None
+        raise RawFormatError(f"corrupt picamcal raw file ({what}: {exception_detail(exc)})", path) from None
 
 
 def _member(
@@ -164,7 +182,7 @@ def _member(
 
 def _record(archive: zipfile.ZipFile, path: Path) -> dict[str, Any]:
     """The JSON record of ``metadata.npy`` (a 0-d unicode array), checked field by field."""
-    info, member = _member(archive, "metadata.npy", path, _MAX_RECORD_BYTES)
+    info, member = _member(archive, "metadata.npy", path, MAX_JSON_BYTES)
     with member, _reading(path, "metadata.npy"):
         shape, _, dtype = read_npy_header(member, path, "member metadata.npy")
         if dtype.kind != "U" or shape != ():

@@ -83,7 +83,10 @@ def tuning_gamma_curve(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.nda
 
     Examples
     --------
-    >>> linear, encoded = tuning_gamma_curve("imx219.json")  # doctest: +SKIP
+    >>> from picamcal.export.tuning import stock_tuning_path
+    >>> linear, encoded = tuning_gamma_curve(stock_tuning_path("imx219", "pisp"))
+    >>> float(linear[0]), float(linear[-1]), bool(np.all(np.diff(encoded) >= 0))
+    (0.0, 1.0, True)
     """
     path = Path(path)
     tuning = read_json(path, RawFormatError, "a JSON tuning file")
@@ -273,8 +276,11 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
 
     Examples
     --------
-    >>> image = read_processed("sample.jpg", encoding="tuning:imx219.json")  # doctest: +SKIP
-    >>> image.rgb.dtype, image.rgb.max() <= 1.0  # doctest: +SKIP
+    >>> from PIL import Image
+    >>> Image.fromarray(np.full((4, 6, 3), 188, np.uint8)).save("grey.png")  # sRGB 188: linear 0.5
+    >>> image = read_processed("grey.png", encoding="srgb")
+    >>> image.rgb.shape, image.rgb.dtype, round(float(image.rgb.mean()), 3)
+    ((4, 6, 3), dtype('float32'), 0.503)
     """
     path = Path(path)
     head = file_head(path)

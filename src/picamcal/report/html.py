@@ -12,7 +12,7 @@ import html
 import json
 import os
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ from .._atomic import make_temporary, refuse_inputs_as_output, remove_stale_temp
 from .._version import __version__
 from ..calibration import Calibration
 from ..errors import OutputError
+from ..modes import Mode
 from ..raw import RawImage, read_raw
 from ..records import json_default
 
@@ -79,7 +80,7 @@ _UNMIXING_FIGURES = ("unmixing_grid",)
 #: Why a flat-field calibration's report leaves the unmixing checks and figures out, and how to get them.
 _FLAT_NOTE = (
     "This is a flat-field calibration, from a white reference alone: it corrects vignetting and colour balance "
-    "(modes balance and flat) and has no colour unmixing. The checks and figures about the unmixing (conditioning, "
+    "(modes uncorrected and flat) and has no colour unmixing. The checks and figures about the unmixing (conditioning, "
     "noise penalty of unmixing, smoothness of the unmixing field, the unmixing field itself) are left out because "
     "there is nothing to check. For colour unmixing, calibrate with red, green and blue references too, or combine "
     "this white with a jig calibration (picamcal calibrate --white WHITE --unmixing-from JIG.npz)."
@@ -146,15 +147,15 @@ def _test_image_section(
     from ..correct import correct
 
     stem = f"test{index}"
-    images = {mode: correct(raw, cal, mode) for mode in cal.modes}
-    found = find_wheels(images["balance"], layout=layout)
+    images = {mode.value: correct(raw, cal, mode) for mode in cal.modes}
+    found = find_wheels(images[Mode.UNCORRECTED.value], layout=layout)
     result = analyse(images, found)
     parts = [
         f"<h3>{_esc(Path(raw.source).name)}</h3>",
         "<table><tr><th>mode</th><th>corner CIEDE2000 max</th>"
         "<th>CIEDE2000 mean</th><th>saturation vs centre</th></tr>",
     ]
-    for mode in cal.modes:
+    for mode in images:
         summary = result[mode]["summary"] if "summary" in result[mode] else result[mode]
         parts.append(
             f"<tr><td>{mode}</td><td class='num'>{summary['max_delta_e']:.2f}</td>"
@@ -162,7 +163,7 @@ def _test_image_section(
             f"<td class='num'>{summary['mean_saturation_ratio']:.2f}</td></tr>"
         )
     parts.append("</table>")
-    for mode in (m for m in ("balance", "flat", "centre") if m in cal.modes):
+    for mode in (m.value for m in (Mode.UNCORRECTED, Mode.FLAT, Mode.CENTRE) if m in cal.modes):
         save_preview(folder / f"{stem}_{mode}.png", images[mode], max_size=900)
         polar_plot(result[mode], folder / f"{stem}_{mode}_polar.png", title=f"{mode}: hue and saturation")
         wheel_crops(images[mode], found, folder / f"{stem}_{mode}_wheels.png")
@@ -194,7 +195,7 @@ def write_report(
         The report folder; refused if it exists and is not empty, unless ``overwrite``.
     test_images : raw images or paths
         Images of a colour-wheel target to show before and after correction, with polar plots, in every mode
-        the calibration has (``balance`` and ``flat`` for a flat-field calibration).
+        the calibration has (``uncorrected`` and ``flat`` for a flat-field calibration).
     layout : dict, optional
         The target's layout (``picamcal target``); without it the wheels are found in the image.
     cra_corner_deg : float, optional
@@ -212,7 +213,9 @@ def write_report(
 
     Examples
     --------
-    >>> write_report(load_calibration("cal.npz"), "report", test_images=["target.dng"])  # doctest: +SKIP
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> write_report(cal, "report")
     PosixPath('report/index.html')
     """
     from ..analysis.diagnostics import diagnose
@@ -255,7 +258,7 @@ def _percent(fraction: float | None, decimals: int) -> str:
     return "&ndash;" if fraction is None else f"{100 * fraction:.{decimals}f} %"
 
 
-def _frames_cell(info: dict) -> str:
+def _frames_cell(info: Mapping[str, Any]) -> str:
     """The checksum of a single-frame reference, or the count and temporal noise of averaged frames."""
     if info.get("frame_count", 1) > 1:
         return (
@@ -266,13 +269,13 @@ def _frames_cell(info: dict) -> str:
 
 
 def _page(cal: Calibration, checks: list[dict], figures: list[tuple[str, str, str]], tests: list[str]) -> str:
-    meta = cal.meta
+    made = cal.provenance
     inputs = "".join(
         f"<tr><td>{_esc(i['role'])}</td><td><code>{_esc(i.get('name', ''))}</code></td><td>{_esc(i['format'])}</td>"
         f"<td class='num'>{_percent(i.get('median_fraction'), 1)}</td>"
         f"<td class='num'>{_percent(i.get('clipped_fraction'), 3)}</td>"
         f"<td>{_frames_cell(i)}</td></tr>"
-        for i in meta.get("inputs", [])
+        for i in cal.inputs
     )
     verdicts = "".join(
         f"<tr><td>{_esc(c['name'])}</td><td class='{_esc(c['verdict'])}'>{_esc(c['verdict'])}</td>"
@@ -303,8 +306,8 @@ def _page(cal: Calibration, checks: list[dict], figures: list[tuple[str, str, st
 <h1>Calibration report: {_esc((cal.sensor or "unknown sensor").upper())}, {cal.width} x {cal.height}</h1>
 <p>{kind} after Bowman, Vodenicharski, Collins and Stirling, <i>Flat-field and
 colour correction for the Raspberry Pi camera module</i>. Bayer order {_esc(cal.pattern)}, {cal.white.shape[1]} x
-{cal.white.shape[0]} bins of {cal.bin_size} pixels, smoothing {_esc(meta.get("smoothing", 0))} bins, created
-{_esc(meta.get("created", "?"))} with picamcal {_esc(meta.get("software_version", "?"))}; report written
+{cal.white.shape[0]} bins of {cal.bin_size} pixels, smoothing {_esc(cal.smoothing)} bins, created
+{_esc(made.get("created", "?"))} with picamcal {_esc(made.get("software_version", "?"))}; report written
 {datetime.now(timezone.utc).isoformat(timespec="seconds")} with picamcal {__version__}.
 {penalty}</p>
 {note}

@@ -1,4 +1,4 @@
-"""A physical simulator of a Raspberry Pi camera sensor under normally incident light, and its test targets.
+"""The physics of the simulated sensor: lenslets, colour filters and photodiodes under normally incident light.
 
 The model follows the paper's section "Chief Ray Angle compensation" and its Figure "lenslets": every
 pixel has a lenslet, a colour filter and a photodiode. To suit the oblique chief rays of the stock phone
@@ -36,93 +36,61 @@ dozen shifted slices times row and column weights (an 8-megapixel frame renders 
 Examples
 --------
 >>> camera = make_camera("imx219", size=(320, 240))
->>> refs = simulate_references(camera, seed=1)
->>> refs["white"].bayer.shape, refs["white"].pattern
-((240, 320), 'BGGR')
+>>> raw = render(camera, "white", rng=1)
+>>> raw.bayer.shape, raw.pattern, raw.metadata["scene"]
+((240, 320), 'BGGR', 'white')
 """
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, replace
-from pathlib import Path
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import ndtr
 
-from ._atomic import atomic_path
-from .bayer import bin_sites, sites_to_channels
-from .colour_wheel import SEGMENTS
-from .errors import OutputError, PicamcalError
-from .limits import MAX_PIXELS_VARIABLE, max_pixels
-from .raw.brcm import write_brcm
-from .raw.dng import write_dng
-from .raw.model import PATTERNS, RawImage, site_channels
-from .raw.npz import write_npz
-from .raw.picamera2 import write_raw_as_picamera2_npy
-from .sensors import get_sensor
+from ..bayer import bin_sites, sites_to_channels
+from ..errors import PicamcalError
+from ..limits import MAX_PIXELS_VARIABLE, max_pixels
+from ..raw.model import PATTERNS, RawImage, site_channels
+from ..references import COLOURS, ROLES
+from ..sensors import get_sensor
 
 __all__ = [
-    "REFERENCES",
+    "MAX_DUST",
+    "REFERENCE_AMOUNTS",
     "Optics",
     "SimulatedCamera",
+    "check_dust_count",
     "dust_specks",
     "expected_response",
     "ground_truth",
     "make_camera",
     "render",
-    "run_camera",
-    "simulate_references",
-    "simulate_run",
-    "simulate_target",
-    "wheel_layout",
-    "wheel_scene",
+    "white_balance_gains",
 ]
 
-REFERENCES = ("white", "red", "green", "blue", "black")
-"""Names of the reference illuminations, in the order they are captured."""
 
-_REFERENCE_AMOUNTS = {
-    "white": (1.0, 1.0, 1.0),
-    "red": (1.0, 0.0, 0.0),
-    "green": (0.0, 1.0, 0.0),
-    "blue": (0.0, 0.0, 1.0),
-    "black": (0.0, 0.0, 0.0),
-}
+def _reference_amounts(role: str) -> tuple[float, float, float]:
+    if role == "white":
+        return (1.0, 1.0, 1.0)
+    red, green, blue = (float(role == colour) for colour in COLOURS)
+    return (red, green, blue)
 
-# Wheel centres as fractions of the frame width and height.
-_WHEELS = (
-    ("centre", 0.5, 0.5),
-    ("top-left", 0.15, 0.15),
-    ("top-right", 0.85, 0.15),
-    ("bottom-left", 0.15, 0.85),
-    ("bottom-right", 0.85, 0.85),
-)
-_WHEEL_RADIUS = 0.11  # of min(width, height)
-_SUPERSAMPLE = 4  # per axis, at wheel edges only
+
+#: Amounts of the red, green and blue primaries (LEDs) of each reference illumination, keyed by
+#: :data:`picamcal.references.ROLES` in their order: all three for the white, one for each colour, none for the black.
+REFERENCE_AMOUNTS = {role: _reference_amounts(role) for role in ROLES}
 
 _OFFSETS = range(-2, 3)  # lenslets P = Q - n that can reach photodiode Q
 _PAD = 2
 
-#: Raw formats simulate_run writes: name -> (writer, file suffix).
-RAW_WRITERS = {
-    "dng": (write_dng, ".dng"),
-    "brcm": (write_brcm, ".jpg"),
-    "npy": (write_raw_as_picamera2_npy, ".npy"),
-    "npz": (write_npz, ".npz"),
-}
-
 _EXPOSURE_TIME_S = 0.01
 _ANALOGUE_GAIN = 1.0
 
-# Independent random streams of one run (numpy SeedSequence spawn keys).
-_DUST_STREAM = len(REFERENCES)
-_TARGET_STREAM = len(REFERENCES) + 1
 #: The most dust specks a white reference gets: far more than any real sensor shows, and each costs a blob of up
 #: to 250 x 250 pixels to render.
 MAX_DUST = 1000
@@ -282,8 +250,8 @@ def _lenslet_geometry(camera: SimulatedCamera) -> tuple[float, tuple[float, floa
     optics = camera.optics
     corner = math.hypot((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)
     k = optics.lenslet_shift_corner / corner
-    t = tuple(optics.stack_height * math.tan(math.radians(a)) for a in camera.tilt)
-    return k, t  # type: ignore[return-value]
+    tilt_x, tilt_y = (optics.stack_height * math.tan(math.radians(a)) for a in camera.tilt)
+    return k, (tilt_x, tilt_y)
 
 
 def make_camera(
@@ -357,7 +325,7 @@ def make_camera(
         tilt=tilt_xy,
         scale=1.0,
     )
-    peak = float(_uniform_response(camera, _REFERENCE_AMOUNTS["white"]).max())
+    peak = float(_uniform_response(camera, REFERENCE_AMOUNTS["white"]).max())
     return replace(camera, scale=exposure * (camera.white_level - camera.black_level) / peak)
 
 
@@ -455,13 +423,13 @@ def _spread(camera: SimulatedCamera, light: np.ndarray) -> np.ndarray:
 def _scene_amounts(camera: SimulatedCamera, scene: str | ArrayLike) -> tuple[np.ndarray, str]:
     """The scene as (3,) or (H, W, 3) amounts, and its name for the metadata."""
     if isinstance(scene, str):
-        if scene not in _REFERENCE_AMOUNTS:
-            raise PicamcalError(f"unknown scene {scene!r} (expected one of {', '.join(REFERENCES)} or an array)")
-        return np.asarray(_REFERENCE_AMOUNTS[scene], dtype=np.float64), scene
+        if scene not in REFERENCE_AMOUNTS:
+            raise PicamcalError(f"unknown scene {scene!r} (expected one of {', '.join(ROLES)} or an array)")
+        return np.asarray(REFERENCE_AMOUNTS[scene], dtype=np.float64), scene
     amounts = np.asarray(scene)
     if amounts.shape == (3,):
         amounts = amounts.astype(np.float64)
-        names = [k for k, v in _REFERENCE_AMOUNTS.items() if np.array_equal(amounts, v)]
+        names = [k for k, v in REFERENCE_AMOUNTS.items() if np.array_equal(amounts, v)]
         return amounts, names[0] if names else "uniform"
     if amounts.shape != (camera.height, camera.width, 3):
         raise PicamcalError(
@@ -529,14 +497,24 @@ def expected_response(camera: SimulatedCamera, scene: str | ArrayLike) -> np.nda
     return np.asarray(_response(camera, amounts), dtype=np.float64)
 
 
-def _white_gains(camera: SimulatedCamera) -> list[float]:
+def white_balance_gains(camera: SimulatedCamera) -> list[float]:
     """The camera's own white balance: G / R and G / B of its noiseless white response over the central half.
 
     The central half of the frame (whole 2x2 blocks) is where ``picamcal acquire``'s auto white balance
     measures, so simulated and acquired frames carry the same ``colour_gains`` (up to noise); a DNG's
     AsShotNeutral made from them renders the white reference neutral there.
+
+    Returns
+    -------
+    list of 2 float
+        Red and blue gains, rounded to 4 decimals.
+
+    Examples
+    --------
+    >>> white_balance_gains(make_camera("imx219", size=(320, 240)))
+    [2.0023, 1.0316]
     """
-    white = _uniform_response(camera, _REFERENCE_AMOUNTS["white"])
+    white = _uniform_response(camera, REFERENCE_AMOUNTS["white"])
     y0, x0 = camera.height // 8 * 2, camera.width // 8 * 2
     centre = white[y0 : camera.height - y0, x0 : camera.width - x0]
     sites = np.array([centre[k // 2 :: 2, k % 2 :: 2].mean() for k in range(4)])
@@ -572,7 +550,7 @@ def dust_specks(
     >>> sorted(speck), 4 <= speck["radius"] <= 25
     (['depth', 'radius', 'x', 'y'], True)
     """
-    _dust_count(count)
+    check_dust_count(count)
     rng = np.random.default_rng(rng)
     specks = []
     for _ in range(int(count)):
@@ -658,186 +636,21 @@ def render(
     )
 
 
-def wheel_layout(width: int, height: int) -> dict[str, Any]:
-    """Where the colour wheels of the test target are: one in the centre and one near each corner.
-
-    Wheel centres are at 15 %, 50 % and 85 % of the width and height (pixel centres at integer
-    coordinates, so 50 % is ``(W - 1) / 2``); the radius is ``0.11 * min(width, height)``. Segment ``k``
-    covers angles ``[60 k, 60 k + 60)`` degrees counter-clockwise from +x as seen on screen (y down).
-
-    Returns
-    -------
-    dict
-        ``{"width", "height", "segments": [{"name", "colour", "start_deg", "end_deg"}] * 6,
-        "wheels": [{"name", "x", "y", "radius"}] * 5}``, JSON-serialisable.
+def check_dust_count(count: int) -> int:
+    """``count`` if it is a number of dust specks the simulator draws: a whole number from 0 to :data:`MAX_DUST`.
 
     Examples
     --------
-    >>> layout = wheel_layout(320, 240)
-    >>> [s["name"] for s in layout["segments"]]
-    ['red', 'yellow', 'green', 'cyan', 'blue', 'magenta']
-    >>> layout["wheels"][1]
-    {'name': 'top-left', 'x': 47.5, 'y': 35.5, 'radius': 26.4}
+    >>> check_dust_count(3)
+    3
+    >>> check_dust_count(-1)
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: the number of dust specks must be a whole number from 0 to 1000, got -1
     """
-    radius = round(_WHEEL_RADIUS * min(width, height), 6)
-    return {
-        "width": int(width),
-        "height": int(height),
-        "segments": [
-            {"name": name, "colour": list(colour), "start_deg": 60 * k, "end_deg": 60 * (k + 1)}
-            for k, (name, colour) in enumerate(SEGMENTS)
-        ],
-        "wheels": [
-            {"name": name, "x": round(fx * width - 0.5, 6), "y": round(fy * height - 0.5, 6), "radius": radius}
-            for name, fx, fy in _WHEELS
-        ],
-    }
-
-
-def _wheel_colour(dx: np.ndarray, dy: np.ndarray, radius: float, segments: list[dict[str, Any]]) -> np.ndarray:
-    """Amounts (..., 3) at offsets (dx, dy) from a wheel centre: a segment's colour inside, white outside."""
-    angle = np.degrees(np.arctan2(-dy, dx)) % 360.0
-    inside = np.hypot(dx, dy) <= radius
-    out = np.ones((*dx.shape, 3), dtype=np.float32)
-    for seg in segments:
-        mask = inside & (angle >= seg["start_deg"]) & (angle < seg["end_deg"])
-        out[mask] = seg["colour"]
-    return out
-
-
-def wheel_scene(layout: Mapping[str, Any]) -> np.ndarray:
-    """Render the colour-wheel test target as amounts of the R, G, B primaries.
-
-    Pixels on a segment or rim boundary are 4x4 supersampled (anti-aliased); the rest take the colour
-    at their centre.
-
-    Parameters
-    ----------
-    layout : dict
-        From :func:`wheel_layout`.
-
-    Returns
-    -------
-    ndarray of float32, shape (height, width, 3)
-
-    Examples
-    --------
-    >>> scene = wheel_scene(wheel_layout(320, 240))
-    >>> scene.shape, scene[115, 170].tolist(), scene[0, 0].tolist()  # red segment, white background
-    ((240, 320, 3), [1.0, 0.0, 0.0], [1.0, 1.0, 1.0])
-    """
-    width, height = int(layout["width"]), int(layout["height"])
-    segments = list(layout["segments"])
-    boundaries = np.radians([float(seg["start_deg"]) for seg in segments])
-    scene = np.ones((height, width, 3), dtype=np.float32)
-    sub = (np.arange(_SUPERSAMPLE) + 0.5) / _SUPERSAMPLE - 0.5
-    near = 0.75  # beyond half a pixel diagonal (0.71) a boundary cannot cross the pixel
-    for wheel in layout["wheels"]:
-        cx, cy, radius = float(wheel["x"]), float(wheel["y"]), float(wheel["radius"])
-        x0, x1 = max(0, math.floor(cx - radius - 1)), min(width, math.ceil(cx + radius + 2))
-        y0, y1 = max(0, math.floor(cy - radius - 1)), min(height, math.ceil(cy + radius + 2))
-        if x0 >= x1 or y0 >= y1:
-            continue
-        dx = np.arange(x0, x1, dtype=np.float64)[None, :] - cx
-        dy = np.arange(y0, y1, dtype=np.float64)[:, None] - cy
-        dx, dy = np.broadcast_arrays(dx, dy)
-        block = _wheel_colour(dx, dy, radius, segments)
-        rho = np.hypot(dx, dy)
-        # Distance to each boundary ray (angle b, on screen y down): perpendicular distance where the
-        # point projects onto the ray, else the distance to the wheel centre.
-        along = dx[..., None] * np.cos(boundaries) - dy[..., None] * np.sin(boundaries)
-        across = np.abs(dx[..., None] * np.sin(boundaries) + dy[..., None] * np.cos(boundaries))
-        ray = np.where(along > 0, across, rho[..., None]).min(axis=-1)
-        edge = (np.abs(rho - radius) < near) | ((ray < near) & (rho < radius + near))
-        ey, ex = np.nonzero(edge)
-        if ey.size:
-            sdx = dx[ey, ex][:, None, None] + sub[None, None, :]
-            sdy = dy[ey, ex][:, None, None] + sub[None, :, None]
-            sdx, sdy = np.broadcast_arrays(sdx, sdy)
-            block[ey, ex] = _wheel_colour(sdx, sdy, radius, segments).mean(axis=(1, 2))
-        scene[y0:y1, x0:x1] = block
-    return scene
-
-
-def _stream(seed: int, index: int) -> np.random.Generator:
-    """Independent random stream ``index`` of a run with this seed."""
-    return np.random.default_rng(np.random.SeedSequence(_seed(seed), spawn_key=(index,)))
-
-
-def _dust_count(count: int) -> int:
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 0 <= count <= MAX_DUST:
         raise PicamcalError(f"the number of dust specks must be a whole number from 0 to {MAX_DUST}, got {count!r}")
     return int(count)
-
-
-def _seed(seed: int) -> int:
-    """``seed`` if numpy can seed with it: a whole number, 0 or more."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise PicamcalError(f"the seed must be a whole number, 0 or more, got {seed!r}")
-    return int(seed)
-
-
-def simulate_references(
-    camera: SimulatedCamera, *, noise: bool = True, seed: int = 0, dust: int = 0
-) -> dict[str, RawImage]:
-    """Render the five reference illuminations: white, red, green, blue (the LEDs) and black (LED off).
-
-    Parameters
-    ----------
-    camera : SimulatedCamera
-    noise : bool
-        Add shot and read noise.
-    seed : int
-        Seed of the noise and of the dust positions (each frame has its own stream).
-    dust : int
-        Number of dust specks on the white reference only (listed in its ``metadata["dust"]``).
-
-    Returns
-    -------
-    dict of str to RawImage
-        Keyed by :data:`REFERENCES`, in that order. Each carries the camera's white balance as
-        ``metadata["colour_gains"]`` (red, blue), what a camera with its white balance frozen on the white records.
-
-    Examples
-    --------
-    >>> camera = make_camera("imx219", size=(320, 240))
-    >>> refs = simulate_references(camera, noise=False, dust=2)
-    >>> list(refs), len(refs["white"].metadata["dust"])
-    (['white', 'red', 'green', 'blue', 'black'], 2)
-    """
-    specks = dust_specks(camera, dust, rng=_stream(seed, _DUST_STREAM))
-    frames = {
-        name: render(camera, name, noise=noise, rng=_stream(seed, i), dust=specks if name == "white" else None)
-        for i, name in enumerate(REFERENCES)
-    }
-    gains = _white_gains(camera)
-    for raw in frames.values():
-        raw.metadata["colour_gains"] = list(gains)
-    return frames
-
-
-def simulate_target(camera: SimulatedCamera, *, noise: bool = True, seed: int = 0) -> tuple[RawImage, dict]:
-    """Render the colour-wheel test target with the same frozen settings as the references.
-
-    Returns
-    -------
-    RawImage
-        The frame, ``metadata["scene"] == "target"``, with the references' ``metadata["colour_gains"]``.
-    dict
-        Its :func:`wheel_layout`.
-
-    Examples
-    --------
-    >>> camera = make_camera("imx219", size=(320, 240))
-    >>> raw, layout = simulate_target(camera, seed=3)
-    >>> raw.metadata["scene"], len(layout["wheels"])
-    ('target', 5)
-    """
-    layout = wheel_layout(camera.width, camera.height)
-    raw = render(camera, wheel_scene(layout), noise=noise, rng=_stream(seed, _TARGET_STREAM))
-    raw.metadata["scene"] = "target"
-    raw.metadata["colour_gains"] = _white_gains(camera)
-    return raw, layout
 
 
 def ground_truth(camera: SimulatedCamera, *, bin_size: int = 16) -> dict[str, np.ndarray]:
@@ -875,189 +688,3 @@ def ground_truth(camera: SimulatedCamera, *, bin_size: int = 16) -> dict[str, np
         "site_mixing": mixing,
         "vignetting_centre": np.array(camera.vignetting_centre, dtype=np.float64),
     }
-
-
-def _write_json(path: Path, record: Mapping[str, Any], overwrite: bool) -> None:
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        tmp.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-
-
-def run_camera(
-    sensor: str = "imx219",
-    *,
-    pattern: str | None = None,
-    size: tuple[int, int] | None = None,
-    tilt: tuple[float, float] = (0.0, 0.0),
-    seed: int = 0,
-    dust: int = 0,
-    fmt: str = "dng",
-) -> SimulatedCamera:
-    """The camera :func:`simulate_run` simulates, with every argument checked before anything is written.
-
-    Parameters
-    ----------
-    sensor, pattern, size, tilt
-        As :func:`make_camera`.
-    seed : int
-        Seed of the noise and dust: a whole number, 0 or more.
-    dust : int
-        Number of dust specks, 0 to :data:`MAX_DUST`.
-    fmt : str
-        A raw format of :data:`RAW_WRITERS`; ``"brcm"`` only at one of the sensor's legacy mode sizes.
-
-    Returns
-    -------
-    SimulatedCamera
-
-    Raises
-    ------
-    PicamcalError
-        Any argument out of range (a frame over the pixel limit of :func:`picamcal.limits.max_pixels` too).
-
-    Examples
-    --------
-    >>> run_camera("imx219", size=(320, 240), fmt="npz").width
-    320
-    >>> run_camera("imx219", size=(320, 240), seed=-1)
-    Traceback (most recent call last):
-    ...
-    picamcal.errors.PicamcalError: the seed must be a whole number, 0 or more, got -1
-    """
-    if fmt not in RAW_WRITERS:
-        raise PicamcalError(f"unknown raw format {fmt!r} (expected one of {', '.join(RAW_WRITERS)})")
-    _seed(seed)
-    _dust_count(dust)
-    camera = make_camera(sensor, pattern=pattern, size=size, tilt=tilt)
-    if fmt == "brcm" and not any(
-        (m.width, m.height, m.bit_depth) == (camera.width, camera.height, camera.bit_depth)
-        for m in get_sensor(sensor).legacy_modes
-    ):
-        modes = ", ".join(f"{m.width}x{m.height} {m.bit_depth}-bit" for m in get_sensor(sensor).legacy_modes)
-        raise PicamcalError(
-            f"the legacy JPEG+raw format has no {camera.width}x{camera.height} {camera.bit_depth}-bit mode for the "
-            f"{sensor} (modes: {modes or 'none'})"
-        )
-    return camera
-
-
-def _is_simulated_run(truth_json: Path) -> bool:
-    """Whether ``truth_json`` is the record :func:`simulate_run` writes (a regular file: a FIFO would block)."""
-    if not truth_json.is_file() or truth_json.is_symlink():
-        return False
-    try:
-        record = json.loads(truth_json.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
-        return False
-    return isinstance(record, dict) and isinstance(record.get("optics"), dict) and "files" in record
-
-
-def simulate_run(
-    out_dir: str | os.PathLike[str],
-    sensor: str = "imx219",
-    *,
-    pattern: str | None = None,
-    size: tuple[int, int] | None = None,
-    tilt: tuple[float, float] = (0.0, 0.0),
-    seed: int = 0,
-    noise: bool = True,
-    dust: int = 0,
-    bin_size: int = 16,
-    fmt: str = "dng",
-    overwrite: bool = False,
-) -> dict[str, Path]:
-    """Simulate a whole calibration run and write it to a directory, with its ground truth.
-
-    Writes ``white``, ``red``, ``green``, ``blue``, ``black`` and ``target`` raw files (``.dng``, or
-    another format with ``fmt``), ``layout.json`` (:func:`wheel_layout`), ``truth.npz``
-    (:func:`ground_truth` arrays and ``bin_size``) and ``truth.json`` (sensor, pattern, size, tilt, seed,
-    optics, exposure scale, dust specks, layout). Every file is written atomically.
-
-    Parameters
-    ----------
-    out_dir : path-like
-        Directory, created if missing.
-    sensor, pattern, size, tilt
-        As :func:`make_camera`.
-    seed : int
-        Seed of the noise and dust.
-    noise : bool
-        Add shot and read noise.
-    dust : int
-        Number of dust specks on the white reference.
-    bin_size : int
-        Bin size of the ground truth.
-    fmt : {"dng", "brcm", "npy", "npz"}
-        Raw file format: DNG, the legacy firmware's JPEG with a BRCM raw block (``.jpg``; only at the
-        sensor's legacy mode sizes), picamera2's packed raw buffer as ``.npy`` with a JSON sidecar, or
-        picamcal ``.npz``.
-    overwrite : bool
-        Replace the files of an earlier simulated run (a folder with its ``truth.json``); otherwise nothing is
-        written if any output exists. Files in a folder that is not a simulated run are never replaced.
-
-    Returns
-    -------
-    dict of str to Path
-        The written files, keyed ``white`` ... ``black``, ``target``, ``layout``, ``truth_npz``, ``truth_json``.
-
-    Raises
-    ------
-    OutputError
-        An output file exists already and ``overwrite`` is False or the folder is not a simulated run, or the
-        directory is not writable.
-    PicamcalError
-        An argument out of range (:func:`run_camera`).
-
-    Examples
-    --------
-    >>> paths = simulate_run("run1", size=(320, 240), dust=3)  # doctest: +SKIP
-    >>> paths["white"], paths["truth_json"]  # doctest: +SKIP
-    (PosixPath('run1/white.dng'), PosixPath('run1/truth.json'))
-    """
-    camera = run_camera(sensor, pattern=pattern, size=size, tilt=tilt, seed=seed, dust=dust, fmt=fmt)
-    writer, suffix = RAW_WRITERS[fmt]
-    out = Path(out_dir)
-    paths = {name: out / f"{name}{suffix}" for name in (*REFERENCES, "target")}
-    paths.update(layout=out / "layout.json", truth_npz=out / "truth.npz", truth_json=out / "truth.json")
-    existing = [path for path in paths.values() if path.exists() or path.is_symlink()]
-    if existing and not overwrite:
-        raise OutputError("exists already (use --overwrite to replace it)", existing[0])
-    if existing and not _is_simulated_run(paths["truth_json"]):
-        raise OutputError(
-            "exists and the folder is not a simulated run (it has no truth.json of one): --overwrite replaces only "
-            "what picamcal simulated; choose another output folder",
-            existing[0],
-        )
-    truth = ground_truth(camera, bin_size=bin_size)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create the directory: {exc.strerror or exc}", out) from exc
-
-    frames = simulate_references(camera, noise=noise, seed=seed, dust=dust)
-    target, layout = simulate_target(camera, noise=noise, seed=seed)
-    frames["target"] = target
-    for name, raw in frames.items():
-        writer(paths[name], raw, overwrite=overwrite)
-    _write_json(paths["layout"], layout, overwrite)
-    with atomic_path(paths["truth_npz"], overwrite=overwrite) as tmp, open(tmp, "wb") as f:
-        np.savez(f, **truth, bin_size=np.array(bin_size))
-    record = {
-        "sensor": camera.sensor,
-        "pattern": camera.pattern,
-        "size": [camera.width, camera.height],
-        "tilt": list(camera.tilt),
-        "seed": int(seed),
-        "noise": bool(noise),
-        "bin_size": int(bin_size),
-        "bit_depth": camera.bit_depth,
-        "black_level": camera.black_level,
-        "white_level": camera.white_level,
-        "scale": camera.scale,
-        "optics": asdict(camera.optics),
-        "vignetting_centre": list(camera.vignetting_centre),
-        "dust": frames["white"].metadata.get("dust", []),
-        "layout": layout,
-        "files": {name: path.name for name, path in paths.items()},
-    }
-    _write_json(paths["truth_json"], record, overwrite)
-    return paths

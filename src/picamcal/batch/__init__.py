@@ -1,0 +1,59 @@
+"""Correct many images at once: a process pool on this machine, or an existing dask.distributed cluster.
+
+One function, :func:`run_batch`, takes files, folders or glob patterns (:func:`expand_inputs`) and one
+:class:`BatchOptions` value, and writes one image per input in one of :data:`picamcal.output.OUTPUT_FORMATS`
+(float32 linear RGB TIFF by default; uint16 linear TIFF; colour-managed sRGB PNG or JPEG), or one chunked
+float32 OME-Zarr stack (:mod:`picamcal.output.ome_zarr`). The same per-file task runs in this process, in a
+local process pool or on a dask cluster, so the outputs are the same bytes either way.
+
+The modules: :mod:`~picamcal.batch.options` (the options, checked once), :mod:`~picamcal.batch.inputs`
+(files, folders and patterns), :mod:`~picamcal.batch.disk` (the output place and its room),
+:mod:`~picamcal.batch.worker` (the task and what a worker keeps), :mod:`~picamcal.batch.executors` (this
+process, a pool, dask) and :mod:`~picamcal.batch.run` (:func:`run_batch` itself).
+
+What it guarantees:
+
+- **Bounded memory.** At most two tasks per worker are in flight; inputs are read by the workers, one at
+  a time, never all up front; a task returns a few words, not its image.
+- **Calibration loaded once per worker** (a module-level cache keyed by the file's path and SHA-256).
+- **No half-written output.** Every file is written to a temporary name and renamed; zarr chunks likewise
+  (zarr's local store writes each chunk to a temporary name). Temporaries left by a killed batch are
+  removed by the next run (:func:`picamcal._atomic.remove_stale_temporaries`).
+- **Nothing left running.** The pool's workers end when this process ends, even by ``kill -9``; then the
+  forkserver and multiprocessing's resource tracker, which wait for them, end too.
+- **Resumable.** Existing outputs are skipped unless ``overwrite``; the zarr stack records its finished
+  frames in its attributes. Running the same command again finishes an interrupted batch.
+- **A bad file does not stop the others,** whichever it is, the first included: a corrupt file, or one of
+  another size or sensor than the calibration's. Its reason is in :attr:`BatchResult.failed`. Problems with
+  the whole batch (the options, the calibration, the output folder, the scheduler) raise a
+  :class:`~picamcal.errors.PicamcalError` before any work.
+
+Examples
+--------
+>>> from picamcal.batch import BatchOptions, run_batch
+>>> from picamcal.simulate import simulate_run
+>>> refs = simulate_run("run1", "imx219", size=(320, 240), seed=1)
+>>> cal = picamcal.calibrate(**{r: picamcal.read_raw(refs[r]) for r in ("white", "red", "green", "blue")})
+>>> cal.save("cal.npz")
+PosixPath('cal.npz')
+>>> options = BatchOptions(zarr_path="frames.zarr", mode="flat", workers=0)
+>>> len(run_batch("cal.npz", ["run1/target.dng", "run1/white.dng"], options).done)
+2
+"""
+
+from __future__ import annotations
+
+from ..output.ome_zarr import OME_NGFF_VERSION
+from .inputs import expand_inputs
+from .options import COMPRESSIONS, BatchOptionError, BatchOptions
+from .run import BatchResult, run_batch
+
+__all__ = [
+    "COMPRESSIONS",
+    "OME_NGFF_VERSION",
+    "BatchOptionError",
+    "BatchOptions",
+    "BatchResult",
+    "expand_inputs",
+    "run_batch",
+]

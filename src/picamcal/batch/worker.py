@@ -1,0 +1,195 @@
+"""The task every worker runs: correct one file and write its output; and what a worker keeps between tasks.
+
+A task is :func:`process` with the batch's :class:`Settings` (small and picklable, sent with every task) and
+one :class:`Job`; it returns an :class:`Outcome` of a few words, never the image. What a worker loads once (the
+calibration, a white reference, a tuning file) is kept in a module-level cache keyed by what identifies it,
+the calibration by its path and SHA-256.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from ..calibration import Calibration, load_calibration
+from ..correct import correct, correct_processed
+from ..errors import OutputError, PicamcalError, PicamcalWarning
+from ..export.isp import processed_inputs
+from ..export.tuning import load_tuning
+from ..modes import Mode
+from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
+from ..output.ome_zarr import write_frame
+from ..raw import read_raw
+from ..raw.processed import ProcessedImage, read_processed
+from ..records import sha256_file
+from .disk import PLACE_ERRORS
+
+_T = TypeVar("_T")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Everything a worker needs besides the file: small and picklable (sent with every task)."""
+
+    calibration: str  # absolute path
+    calibration_sha256: str
+    mode: str  # a picamcal.modes.Mode value
+    binned: bool
+    processed: bool
+    input_encoding: str  # as given: recorded in the outputs' metadata
+    decode: str  # the same encoding with an absolute tuning path, for workers with another working folder
+    read_options: dict[str, Any]  # keyword arguments of read_raw: pattern, black_level, raw_format, size, ...
+    white: str | None
+    tuning: str | None
+    compression: str | None
+    output_format: str  # one of picamcal.output.OUTPUT_FORMATS
+    overwrite: bool
+    zarr_array: str | None  # absolute path of the stack's array, or None for image files
+    mosaic: tuple[int, int] | None = None  # (columns, rows): frame i is the tile at row, column = divmod(i, columns)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One input: its position (the frame number in a zarr stack), its absolute path, and its output file's."""
+
+    index: int
+    source: str
+    target: str | None  # None for a zarr frame
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a task did: nothing wrong (``error`` None), or why it failed, in one line."""
+
+    index: int
+    error: str | None = None
+    place_error: str | None = None  # the output place is unusable (disk full, read-only): stop the batch
+    warnings: tuple[str, ...] = ()
+
+
+#: Per worker process: what was loaded once (calibration, white reference, tuning), keyed by what identifies it.
+_CACHE: dict[tuple, Any] = {}
+
+
+def _cached(key: tuple, load: Callable[[], _T]) -> _T:
+    if key not in _CACHE:
+        if len(_CACHE) > 8:  # a long-lived dask worker serving many batches
+            _CACHE.clear()
+        _CACHE[key] = load()
+    return _CACHE[key]
+
+
+def calibration_of(settings: Settings) -> Calibration:
+    """The batch's calibration, loaded once per worker, refused if the file is not the one the batch started with."""
+
+    def load() -> Calibration:
+        path = Path(settings.calibration)
+        if not path.is_file():
+            raise PicamcalError("no such calibration file", path)
+        if sha256_file(path) != settings.calibration_sha256:
+            raise PicamcalError("is not the calibration the batch started with (it changed, or is another file)", path)
+        return load_calibration(path)
+
+    return _cached(("calibration", settings.calibration, settings.calibration_sha256), load)
+
+
+def check_worker(settings: Settings) -> str | None:
+    """Run on each dask worker before any work: load (and cache) the calibration; what is wrong, or None."""
+    try:
+        calibration_of(settings)
+    except PicamcalError as exc:
+        return exc.problem
+    return None
+
+
+def process(settings: Settings, job: Job) -> Outcome:
+    """Correct one file and write its output: the task every worker runs (a top-level function, picklable).
+
+    Never raises for a problem with the file: the outcome says what went wrong, in one line.
+    """
+    place_error = None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            _write(settings, job, *_correct_file(settings, Path(job.source)))
+            error = None
+        except PicamcalError as exc:
+            error = exc.problem if exc.path == job.source else str(exc)
+            cause = exc.__cause__
+            if isinstance(exc, OutputError) and isinstance(cause, OSError) and cause.errno in PLACE_ERRORS:
+                place_error = exc.problem
+        except Exception as exc:  # a surprise in one file must not stop the others
+            error = f"{type(exc).__name__}: {exc}"
+    messages = tuple(str(w.message) for w in caught if issubclass(w.category, PicamcalWarning))
+    return Outcome(job.index, error, place_error, messages)
+
+
+def _correct_file(settings: Settings, source: Path) -> tuple[np.ndarray, dict[str, Any]]:
+    """The corrected image, and the metadata its colour matrix comes from (the raw's; none for processed)."""
+    cal = calibration_of(settings)
+    if settings.processed:
+        return _correct_processed(read_processed(source, settings.decode), cal, settings), {}
+    # The calibration's size is checked from the file's header, before a frame of another size is decoded.
+    raw = read_raw(source, **settings.read_options, expected_shape=(cal.height, cal.width))
+    return correct(raw, cal, mode=settings.mode, binned=settings.binned), raw.metadata
+
+
+def _correct_processed(image: ProcessedImage, cal: Calibration, settings: Settings) -> np.ndarray:
+    """correct_processed, with the ISP's lens shading and CCM taken from the tuning file the camera ran with."""
+    white = None
+    if settings.white is not None:
+        white_path = settings.white
+        white = _cached(("white", white_path, settings.decode), lambda: read_processed(white_path, settings.decode))
+    if settings.tuning is None:
+        return correct_processed(image, cal, settings.mode, white=white)
+    tuning = _tuning(settings.tuning)
+    return correct_processed(image, cal, settings.mode, white=white, **processed_inputs(tuning, cal, image))
+
+
+def _tuning(path: str) -> dict[str, Any]:
+    return _cached(("tuning", path), lambda: load_tuning(path))
+
+
+def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any]) -> None:
+    if settings.zarr_array is not None:
+        write_frame(settings.zarr_array, job.index, rgb, settings.mosaic, source=job.source)
+        return
+    if job.target is None:
+        raise OutputError("has no output file planned (a zarr frame sent to a folder batch)", job.source)
+    info: dict[str, Any] = {
+        "source": Path(job.source).name,
+        "calibration": Path(settings.calibration).name,
+        "mode": settings.mode,
+        "binned": settings.binned,
+    }
+    if settings.processed:
+        info["input_encoding"] = settings.input_encoding
+    write_corrected(
+        job.target,
+        rgb,
+        settings.output_format,
+        info,
+        colour_matrix=_colour_matrix(settings, source_metadata) if settings.output_format in SRGB_FORMATS else None,
+        overwrite=settings.overwrite,
+        compression=settings.compression,
+    )
+
+
+def _colour_matrix(settings: Settings, source_metadata: dict[str, Any]) -> ColourMatrix:
+    """The sRGB formats' colour matrix: none for processed images (already in the ISP's output, sRGB, space) and
+    for ``pure`` mode (the calibration's primaries, not the camera's), else :func:`picamcal.output.camera_to_srgb`."""
+    if settings.processed:
+        return ColourMatrix(np.eye(3), "none: a processed image is in the ISP's output (sRGB) space already")
+    if settings.mode == Mode.PURE:
+        return ColourMatrix(np.eye(3), "none: mode pure writes the calibration's primaries, taken as sRGB's")
+    if settings.tuning is None:
+        return camera_to_srgb(source_metadata)
+    return camera_to_srgb(source_metadata, _tuning(settings.tuning), tuning_path=settings.tuning)
+
+
+__all__ = ["Job", "Outcome", "Settings", "calibration_of", "check_worker", "process"]

@@ -1,0 +1,137 @@
+"""Colour-managed sRGB outputs, to look at: PNG (8 or 16 bit) and JPEG, each with an sRGB ICC profile.
+
+``srgb-png``, ``srgb-png16``, ``srgb-jpeg``
+    Colour-managed (:func:`picamcal.output.colour.encode_srgb`): the corrected RGB to linear sRGB through a
+    3x3 colour matrix (:func:`picamcal.output.colour.camera_to_srgb`), the white reference at linear
+    :data:`~picamcal.output.colour.SRGB_WHITE_LEVEL` (0.8: code 231 of 255, 59396 of 65535), values outside
+    0-1 clipped, the sRGB transfer function (IEC 61966-2-1), and an sRGB ICC profile embedded. Provenance in
+    a PNG ``iTXt`` chunk ``picamcal`` (JSON) and ``tEXt Software``; in the JPEG's EXIF ``ImageDescription``
+    (JSON) and ``Software``. JPEG at quality 95 without chroma subsampling (4:4:4).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import zlib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._atomic import atomic_path
+from .colour import NO_MATRIX, SRGB_WHITE_LEVEL, ColourMatrix, encode_srgb, srgb_transfer
+from .provenance import SOFTWARE
+
+#: The colour-managed formats (they need a colour matrix), and the file name suffix of each.
+SRGB_SUFFIXES = {"srgb-png": ".png", "srgb-png16": ".png", "srgb-jpeg": ".jpg"}
+SRGB_FORMATS = tuple(SRGB_SUFFIXES)
+#: JPEG quality of ``srgb-jpeg`` (Pillow's scale, 1-95).
+JPEG_QUALITY = 95
+
+# zlib level 1: a 12 MP frame compresses about four times faster than at the default 6, for files about 15 %
+# larger (measured on a smooth scene with 1 % noise: 19.7 against 16.7 MB).
+_PNG_ZLIB_LEVEL = 1
+_ICC_DATE = bytes.fromhex("07e8 0001 0001 0000 0000 0000")  # 2024-01-01 00:00:00, see _srgb_profile
+
+
+def write_srgb(
+    path: str | os.PathLike[str],
+    rgb: np.ndarray,
+    output_format: str = "srgb-png",
+    metadata: Mapping[str, Any] | None = None,
+    *,
+    colour_matrix: ColourMatrix | None = None,
+    white_level: float = SRGB_WHITE_LEVEL,
+    overwrite: bool = False,
+) -> Path:
+    """Write a corrected image as one of the :data:`SRGB_FORMATS`, atomically (:func:`picamcal.output.write_corrected`).
+
+    ``metadata`` gains the encoding, the white level and code, and the colour matrix and its source.
+
+    Examples
+    --------
+    >>> from PIL import Image
+    >>> path = write_srgb("white.jpg", np.ones((8, 8, 3), np.float32), "srgb-jpeg")
+    >>> json.loads(Image.open(path).getexif()[0x010E])["picamcal"]["white_code"]
+    231
+    """
+    if output_format not in SRGB_FORMATS:
+        raise ValueError(f"{output_format!r} is not an sRGB format ({', '.join(SRGB_FORMATS)})")
+    bits = 16 if output_format == "srgb-png16" else 8
+    colour_matrix = colour_matrix if colour_matrix is not None else ColourMatrix(np.eye(3), NO_MATRIX)
+    info = dict(metadata or {})
+    info.update(
+        encoding="sRGB (IEC 61966-2-1), sRGB ICC profile embedded",
+        white_level=white_level,
+        white_code=int(np.rint((2**bits - 1) * srgb_transfer(np.array(min(white_level, 1.0))))),
+        colour_matrix=np.round(colour_matrix.matrix, 6).tolist(),
+        colour_matrix_source=colour_matrix.source,
+    )
+    codes = encode_srgb(rgb, colour_matrix, white_level=white_level, bits=bits)
+    description = json.dumps({"picamcal": info})
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        if output_format == "srgb-jpeg":
+            _write_jpeg(tmp, codes, description)
+        else:
+            _write_png(tmp, codes, description)
+    return path
+
+
+def _srgb_profile() -> bytes:
+    """LittleCMS's built-in sRGB profile (through Pillow), with a fixed creation date.
+
+    LittleCMS stamps the profile with the time it was made; a fixed one keeps the outputs the same bytes in
+    every worker and run (the profile has no ID checksum over the header: its ID field is zero).
+    """
+    from PIL import ImageCms
+
+    profile = bytearray(ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes())
+    profile[24:36] = _ICC_DATE
+    return bytes(profile)
+
+
+def _write_jpeg(path: Path, codes: np.ndarray, description: str) -> None:
+    from PIL import Image
+
+    exif = Image.Exif()
+    exif[0x010E] = description  # ImageDescription (ASCII: json.dumps escapes everything else)
+    exif[0x0131] = SOFTWARE  # Software
+    # The tags EXIF 2.32 requires in a JPEG's IFD0 (exiftool -validate): 72 dpi, centred chroma samples.
+    exif.update({0x011A: 72.0, 0x011B: 72.0, 0x0128: 2, 0x0213: 1})
+    Image.fromarray(codes).save(
+        path, "JPEG", quality=JPEG_QUALITY, subsampling=0, icc_profile=_srgb_profile(), exif=exif.tobytes()
+    )
+
+
+def _write_png(path: Path, codes: np.ndarray, description: str) -> None:
+    """8-bit PNG through Pillow (adaptive row filters: smaller files); 16-bit through pypng (Pillow cannot).
+
+    Either way the metadata chunks are added here, after IHDR: ``iCCP`` (the sRGB profile; a PNG with an
+    iCCP has no sRGB chunk), ``iTXt picamcal`` (the JSON) and ``tEXt Software``.
+    """
+    import png
+
+    height, width = codes.shape[:2]
+    encoded = io.BytesIO()
+    if codes.dtype == np.uint8:
+        from PIL import Image
+
+        Image.fromarray(codes).save(encoded, "PNG", compress_level=_PNG_ZLIB_LEVEL)
+    else:
+        writer = png.Writer(width, height, greyscale=False, bitdepth=16, compression=_PNG_ZLIB_LEVEL)
+        writer.write(encoded, codes.reshape(height, width * 3))
+    chunks = list(png.Reader(bytes=encoded.getvalue()).chunks())
+    extra = [
+        (b"iCCP", b"sRGB\x00\x00" + zlib.compress(_srgb_profile())),
+        (b"iTXt", b"picamcal\x00\x00\x00\x00\x00" + description.encode("utf-8")),
+        (b"tEXt", b"Software\x00" + SOFTWARE.encode("latin-1")),
+    ]
+    with open(path, "wb") as file:
+        png.write_chunks(file, [chunks[0], *extra, *chunks[1:]])
+
+
+__all__ = ["JPEG_QUALITY", "SRGB_FORMATS", "SRGB_SUFFIXES", "write_srgb"]
