@@ -92,12 +92,12 @@ def block_mean(values: np.ndarray, block: int, *, partial: bool = True, dtype: t
         values = values[: values.shape[0] // block * block, : values.shape[1] // block * block]
     if values.shape[0] % block == 0 and values.shape[1] % block == 0:
         # Whole blocks only: strided sums, several times faster than reduceat on a 12-megapixel image.
-        rows = values[0::block].astype(dtype)
+        strips: np.ndarray = values[0::block].astype(dtype)
         for i in range(1, block):
-            rows += values[i::block]
-        out = rows[:, 0::block].copy()
+            strips += values[i::block]
+        out = strips[:, 0::block].copy()
         for i in range(1, block):
-            out += rows[:, i::block]
+            out += strips[:, i::block]
         return out / dtype(block * block)
     rows = np.arange(0, values.shape[0], block)
     cols = np.arange(0, values.shape[1], block)
