@@ -19,9 +19,8 @@ import numpy as np
 
 import picamcal
 from picamcal.calibrate import invert_3x3
+from picamcal.references import ROLES
 from picamcal.simulate import simulate_run
-
-ROLES = ("white", "red", "green", "blue", "black")
 
 
 def median_time(fn: Callable[[], object], repeats: int) -> float:
@@ -99,6 +98,21 @@ def bench_inversion(repeats: int) -> list[tuple[str, float, str]]:
     ]
 
 
+def bench_wheels(repeats: int) -> list[tuple[str, float, str]]:
+    """Finding the nine wheels of ``picamcal target``'s target in a 12 MP (4056x3040) linear RGB image."""
+    from picamcal.analysis.wheels import find_wheels
+    from picamcal.colour_wheel import wheel_layout, wheel_scene
+
+    layout = wheel_layout(4056, 3040)
+    image = wheel_scene(layout).astype(np.float32)
+    copy = median_time(lambda: image.copy(), repeats)
+    rows = [("copy of the 4056x3040 RGB image (baseline)", copy, "1.0")]
+    for name, given in (("find the wheels by themselves", None), ("find them through the fiducial marks", layout)):
+        seconds = median_time(lambda given=given: find_wheels(image, layout=given), repeats)
+        rows.append((name, seconds, f"{seconds / copy:.1f}"))
+    return rows
+
+
 def print_table(title: str, rows: list[tuple[str, float, str]]) -> None:
     print(f"\n{title}")
     width = max(len(r[0]) for r in rows)
@@ -117,10 +131,12 @@ def main() -> None:
         reading = bench_reading(args.sensor, args.repeats, Path(folder))
         calibration_12 = bench_calibration_12mp(args.repeats, Path(folder))
     inversion = bench_inversion(args.repeats)
+    wheels = bench_wheels(args.repeats)
     print_table(f"Calibration ({args.sensor}, median of {args.repeats})", calibration)
     print_table("Inverting the 154 x 205 crosstalk matrices", inversion)
     print_table(f"Reading one raw frame ({args.sensor}, median of {args.repeats})", reading)
     print_table(f"Calibration at 12 MP (IMX477, median of {args.repeats})", calibration_12)
+    print_table(f"The colour wheels at 12 MP (median of {args.repeats})", wheels)
     total = calibration[2][1]
     speedup = inversion[0][1] / inversion[2][1]
     slowest_read = max(reading[2][1], reading[3][1])

@@ -267,7 +267,7 @@ def test_a_folder_of_white_frames_and_a_black(camera, tmp_path):
     np.testing.assert_array_equal(load_calibration(tmp_path / "b.npz").site_white, cal.site_white)
     # Only some colours: one line, nothing written.
     result = run("calibrate", "--white", frames[0], "--red", frames[1], "--out", str(tmp_path / "c.npz"))
-    assert_bad_input(result, "give --green and --blue too, or no colour references for a flat field")
+    assert_bad_input(result, "no green or blue reference: give red, green and blue references together, or none")
     assert not (tmp_path / "c.npz").exists()
 
 

@@ -104,28 +104,9 @@ def test_no_docstring_example_is_skipped_outside_the_hardware_modules():
     )
 
 
-#: Modules known to be over the limit, each waiting for its split: the command line is split into a package of
-#: commands next (issue 12's "the CLI only translates"). The test below fails when one is split but still listed.
-PENDING_SPLITS = {"src/picamcal/cli.py"}
-
-
-def _module_lengths() -> dict[str, int]:
-    return {path.relative_to(ROOT).as_posix(): len(path.read_text().splitlines()) for path in SRC.rglob("*.py")}
-
-
 def test_no_module_is_over_800_lines():
-    lengths = _module_lengths()
-    offenders = [
-        f"{name}: {lines} lines"
-        for name, lines in sorted(lengths.items())
-        if lines > MAX_MODULE_LINES and name not in PENDING_SPLITS
-    ]
+    lengths = {path.relative_to(ROOT).as_posix(): len(path.read_text().splitlines()) for path in SRC.rglob("*.py")}
+    offenders = [f"{name}: {lines} lines" for name, lines in sorted(lengths.items()) if lines > MAX_MODULE_LINES]
     assert not offenders, f"modules over {MAX_MODULE_LINES} lines (split them by responsibility):\n" + "\n".join(
         offenders
     )
-
-
-def test_pending_splits_are_still_pending():
-    lengths = _module_lengths()
-    done = sorted(name for name in PENDING_SPLITS if lengths.get(name, 0) <= MAX_MODULE_LINES)
-    assert not done, f"split already (remove from PENDING_SPLITS): {done}"

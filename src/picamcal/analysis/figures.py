@@ -35,6 +35,7 @@ from ..bayer import bin_edges, sites_to_channels
 from ..calibration import Calibration
 from ..modes import Mode
 from ..raw.model import CHANNELS
+from ..references import COLOURS
 from .diagnostics import check_dust, check_vignetting_centre, dust_residual
 
 __all__ = [
@@ -215,7 +216,7 @@ def normalised_references(
     y, x = calibration.bin_centres
     row = int(np.argmin(np.abs(y - (calibration.height - 1) / 2.0)))
     top = max(1.05, float(np.percentile(normalised[:, row], 99.9)) * 1.05)
-    names = ("white", "red", "green", "blue")[: len(channels)]
+    names = ("white", *COLOURS)[: len(channels)]  # the order of site_responses
     width = max(len(names) * 3.0, 7.0)  # the white alone (a flat calibration) keeps room for its title
     fig = Figure(figsize=(width, 3.0 * calibration.height / calibration.width + 2.6), layout="constrained")
     axes = fig.subplots(

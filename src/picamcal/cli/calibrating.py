@@ -1,0 +1,289 @@
+"""The commands that make and apply a calibration: ``calibrate`` and ``correct``."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from ._common import (
+    MAX_WORKERS_PER_CORE,
+    MODE_HELP,
+    BlackOption,
+    FrameOption,
+    PatternOption,
+    RawFormatOption,
+    RawSensorOption,
+    RawSizeOption,
+    StrideOption,
+    app,
+    check_output,
+    choice,
+    console,
+    in_range,
+    parse_mode_option,
+    parse_tiles,
+    progress_bar,
+    read_options,
+    reader,
+)
+
+
+@app.command("calibrate")
+def calibrate_cmd(
+    folder: Annotated[
+        Path | None,
+        typer.Argument(
+            help="Folder holding the white (white_1, white_2, ... to average), optional red, green and blue (all "
+            "three or none), and optional black references."
+        ),
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Calibration file to write (.npz).")] = Path(
+        "calibration.npz"
+    ),
+    white: Annotated[
+        list[Path] | None, typer.Option(help="White reference raw file(s); several frames are averaged.")
+    ] = None,
+    red: Annotated[list[Path] | None, typer.Option(help="Red reference raw file(s).")] = None,
+    green: Annotated[list[Path] | None, typer.Option(help="Green reference raw file(s).")] = None,
+    blue: Annotated[list[Path] | None, typer.Option(help="Blue reference raw file(s).")] = None,
+    black: Annotated[list[Path] | None, typer.Option(help="Dark frame(s) (optional).")] = None,
+    unmixing_from: Annotated[
+        Path | None,
+        typer.Option(help="In situ: take the unmixing from this jig calibration; only --white (and --black) needed."),
+    ] = None,
+    bin_size: Annotated[int, typer.Option(help="Bin edge in sensor pixels (even).")] = 16,
+    smoothing: Annotated[
+        float,
+        typer.Option(
+            help="Gaussian smoothing of the fields, in bins (0 = none; at most a quarter of the bin grid's shorter "
+            "side).",
+            callback=in_range(0, unit=" bins"),
+        ),
+    ] = 0.0,
+    pattern: PatternOption = None,
+    black_level: BlackOption = None,
+    raw_format: RawFormatOption = None,
+    size: RawSizeOption = None,
+    stride: StrideOption = None,
+    frame: FrameOption = None,
+    sensor: RawSensorOption = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
+) -> None:
+    """Measure the flat field, and with red, green and blue references the colour-unmixing field.
+
+    With a white alone (and optionally a dark frame) the calibration is a flat field: vignetting and colour
+    balance, for correct --mode uncorrected|flat, export-tuning and export-lst. With --unmixing-from, a white
+    through your own optics takes the unmixing of a jig calibration. Prints the checks that need a look.
+    """
+    from ..analysis.diagnostics import diagnose
+    from ..calibrate import calibrate, calibrate_in_situ
+    from ..calibration import is_calibration_file
+    from ..references import COLOURS, find_references
+
+    named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
+    refs: dict[str, Any] = find_references(folder, in_situ=unmixing_from is not None) if folder is not None else {}
+    refs.update({role: paths[0] if len(paths) == 1 else paths for role, paths in named.items() if paths})
+    colours = [role for role in COLOURS if role in refs]
+    if "white" not in refs:
+        raise typer.BadParameter("give a folder of references or --white")
+    if unmixing_from is not None and colours:
+        raise typer.BadParameter("--unmixing-from takes the colours from the jig calibration: drop --" + colours[0])
+    paths = [p for ref in refs.values() for p in (ref if isinstance(ref, list) else [ref])]
+    check_output(out, overwrite, is_calibration_file, "a picamcal calibration", [*paths, unmixing_from, folder])
+    read = reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
+
+    def frames(role: str) -> Any:  # several frames are read one at a time, as the calibration averages them
+        ref = refs[role]
+        return (read(path) for path in ref) if isinstance(ref, list) else read(ref)
+
+    with console.status("calibrating"):
+        if unmixing_from is not None:
+            black_frames = frames("black") if "black" in refs else None
+            cal = calibrate_in_situ(frames("white"), unmixing_from, black_frames, smoothing=smoothing)
+        else:
+            cal = calibrate(**{role: frames(role) for role in refs}, bin_size=bin_size, smoothing=smoothing)
+        cal.save(out, overwrite=overwrite)
+        checks = diagnose(cal)
+    what = (
+        f"worst noise penalty (centre mode) {float(cal.noise_penalty('centre').max()):.2f}"
+        if cal.has_unmixing
+        else "a flat field from the white alone (modes uncorrected and flat, no colour unmixing), "
+        f"worst noise penalty (flat mode) {float(cal.noise_penalty('flat').max()):.2f}"
+    )
+    lines = [
+        f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
+        f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, {what}"
+        + (f", unmixing from {unmixing_from.name}" if unmixing_from else "")
+    ]
+    for info in cal.inputs:
+        if info.get("frame_count", 1) > 1:
+            lines.append(
+                f"{info['role']}: {info['frame_count']} frames averaged: temporal noise "
+                f"{info['temporal_noise_dn']:.2f} DN per pixel in one frame, {info['averaged_noise_dn']:.2f} DN in "
+                "their average"
+            )
+    lines += [f"needs a look: {check.name}: {check.summary}" for check in checks if check.verdict == "warn"]
+    for line in lines:
+        console.print(line, markup=False, soft_wrap=True)
+
+
+@app.command("correct")
+def correct_cmd(
+    calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Images, folders of them, or glob patterns (quoted: for very many files).")
+    ],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder for <stem>.tiff (.png, .jpg) files.")
+    ] = None,
+    zarr_path: Annotated[
+        Path | None, typer.Option("--zarr", help="Write one OME-Zarr stack (t, c, y, x) instead of TIFF files.")
+    ] = None,
+    mosaic: Annotated[
+        str | None,
+        typer.Option(help="With --zarr: place the frames as COLUMNSxROWS tiles of one mosaic, row by row."),
+    ] = None,
+    mode: Annotated[str, typer.Option(help=MODE_HELP)] = "centre",
+    binned: Annotated[bool, typer.Option(help="Write the bin-resolution image instead of full resolution.")] = False,
+    processed: Annotated[
+        bool, typer.Option(help="The images are processed (JPEG/PNG/TIFF from the camera's ISP), not raw.")
+    ] = False,
+    input_encoding: Annotated[
+        str | None,
+        typer.Option(
+            help="With --processed: srgb, linear, gamma:G or tuning:FILE (its rpi.contrast curve); default srgb, "
+            "or the --tuning file's curve."
+        ),
+    ] = None,
+    tuning_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--tuning",
+            help="With --processed: the tuning file the camera ran with; its lens shading and CCM are accounted for. "
+            "With raw images and an srgb-* --output-format: its rpi.ccm is the colour matrix to sRGB.",
+        ),
+    ] = None,
+    white_image: Annotated[
+        Path | None, typer.Option("--white", help="With --processed: a processed white reference (residual flat).")
+    ] = None,
+    output_format: Annotated[
+        str,
+        typer.Option(
+            help="float32-tiff (linear, white = 1.0), uint16-tiff (linear, scale in the metadata), srgb-png, "
+            "srgb-png16 or srgb-jpeg (colour-managed, to look at)."
+        ),
+    ] = "float32-tiff",
+    pattern: PatternOption = None,
+    black_level: BlackOption = None,
+    raw_format: RawFormatOption = None,
+    size: RawSizeOption = None,
+    stride: StrideOption = None,
+    frame: FrameOption = None,
+    sensor: RawSensorOption = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            help="Worker processes (default: one per core; 0: no pool, work in this process).",
+            callback=in_range(
+                0,
+                MAX_WORKERS_PER_CORE * (os.cpu_count() or 1),
+                why=f"{MAX_WORKERS_PER_CORE} per core: more "
+                "processes than cores only add memory, a frame and the calibration each",
+            ),
+        ),
+    ] = None,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Run on this dask.distributed scheduler instead (tcp://host:port).")
+    ] = None,
+    compression: Annotated[str | None, typer.Option(help="Compress the outputs: zstd.")] = None,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace existing outputs (without it they are skipped: an interrupted batch resumes).")
+    ] = False,
+) -> None:
+    """Correct raw (or, with --processed, ISP-processed) images in parallel; write one image file per input.
+
+    float32 linear RGB TIFF by default; uint16 linear TIFF for Fiji/ImageJ; sRGB PNG (8 or 16 bit) or
+    JPEG, colour-managed, to look at (docs/outputs.md). Existing outputs are skipped, so running the same
+    command again resumes an interrupted batch. A file that fails is reported at the end and does not stop
+    the others (exit status 1).
+    """
+    from ..batch import BatchOptionError, BatchOptions, run_batch
+    from ..output import OUTPUT_FORMATS
+
+    mode = parse_mode_option(mode)
+    output_format = choice(output_format, OUTPUT_FORMATS, "--output-format")
+    try:
+        options = BatchOptions(
+            out_dir=out,
+            zarr_path=zarr_path,
+            mosaic=parse_tiles(mosaic),
+            mode=mode,
+            binned=binned,
+            workers=workers,
+            scheduler=scheduler,
+            overwrite=overwrite,
+            compression=compression,
+            processed=processed,
+            input_encoding=input_encoding,
+            output_format=output_format,
+            **_batch_read_options(pattern, black_level, raw_format, size, stride, frame, sensor),
+            white=white_image,
+            tuning=tuning_file,
+        )
+    except BatchOptionError as exc:  # options that do not go together, under their command-line names
+        hint = _BATCH_OPTION_NAMES.get(exc.option) if exc.option else None
+        raise typer.BadParameter(exc.message(_BATCH_OPTION_NAMES), param_hint=hint) from None
+    progress = progress_bar(rate=True)
+    bar: dict = {}
+
+    def show(finished: int, total: int) -> None:
+        if not bar:  # the bar appears when the work starts, after every check has passed
+            bar.update(task=progress.add_task(f"correcting ({mode})", total=total, rate=""), start=time.monotonic())
+            progress.start()
+        elapsed = time.monotonic() - bar["start"]
+        progress.update(bar["task"], completed=finished, rate=f"{finished / elapsed:.1f} files/s" if finished else "")
+
+    try:
+        result = run_batch(calibration, inputs, options, progress=show)
+    finally:
+        progress.stop()
+    elapsed = time.monotonic() - bar["start"] if bar else 0.0
+    rate = f" ({len(result.done) / elapsed:.1f} files/s)" if result.done and elapsed > 0 else ""
+    console.print(
+        f"wrote {len(result.done)} image(s) to {zarr_path or out}{rate}; skipped {len(result.skipped)} "
+        f"(done already); failed {len(result.failed)}",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
+    for path, reason in result.failed:
+        console.print(f"picamcal: failed: {path}: {reason}", markup=False, highlight=False, soft_wrap=True)
+    if result.failed:
+        raise typer.Exit(1)
+
+
+_BATCH_OPTION_NAMES = {
+    "out_dir": "--out",
+    "zarr_path": "--zarr",
+    "mosaic": "--mosaic",
+    "binned": "--binned",
+    "processed": "--processed",
+    "input_encoding": "--input-encoding",
+    "white": "--white",
+    "tuning": "--tuning",
+    "output_format": "--output-format",
+    "compression": "--compression",
+    "workers": "--workers",
+    "scheduler": "--scheduler",
+}
+
+
+def _batch_read_options(*args: Any) -> dict[str, Any]:
+    """run_batch's keywords for the reading options (its ``raw_size`` is read_raw's ``size``)."""
+    options = read_options(*args)
+    options["raw_size"] = options.pop("size")
+    return options

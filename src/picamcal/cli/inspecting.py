@@ -1,0 +1,131 @@
+"""``inspect``: what each file is, and what looks wrong with it."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+from rich.text import Text
+
+from ..errors import PicamcalError, PicamcalWarning
+from ._common import (
+    BlackOption,
+    FrameOption,
+    PatternOption,
+    RawFormatOption,
+    RawSensorOption,
+    RawSizeOption,
+    StrideOption,
+    app,
+    reader,
+    stdout_console,
+)
+
+
+@app.command("inspect")
+def inspect_cmd(
+    files: Annotated[list[Path], typer.Argument(help="Files and folders (every file of a folder is listed).")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    pattern: PatternOption = None,
+    black_level: BlackOption = None,
+    raw_format: RawFormatOption = None,
+    size: RawSizeOption = None,
+    stride: StrideOption = None,
+    frame: FrameOption = None,
+    sensor: RawSensorOption = None,
+) -> None:
+    """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong.
+
+    Every file is listed, also those that are not images (sidecars, calibrations) and those that cannot be read
+    (with the reason); the exit status is 1 if any could not be read. One file that cannot be read is one error
+    line (exit status 2), as in every other command.
+    """
+    from ..describe import files_of, survey
+
+    read = reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
+    records = []
+    for path in files_of(files):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            record = survey(path, read)
+        record["warnings"] = [
+            str(w.message).removeprefix(f"{path}: ") for w in caught if issubclass(w.category, PicamcalWarning)
+        ]
+        records.append(record)
+    unreadable = [r for r in records if not r["readable"]]
+    if len(files) == 1 and not files[0].is_dir() and unreadable:
+        raise PicamcalError(unreadable[0]["error"], unreadable[0].get("error_path", files[0]))
+    if as_json:
+        print(json.dumps(_json_safe(records), indent=2, default=str))
+    else:
+        _print_inspection(records)
+    if unreadable:
+        raise typer.Exit(1)
+
+
+def _json_safe(value: Any) -> Any:
+    """Plain JSON: an unknown black level (NaN), or any number that is not finite, becomes null, as JSON has none."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def _print_inspection(records: list[dict[str, Any]]) -> None:
+    table = Table()
+    headings = ["file", "format", "sensor", "size", "pattern", "bits", "black", "white", "exposure", "gain"]
+    frames = any("frames" in r for r in records)
+    for heading in [*headings, "frames"] if frames else headings:
+        table.add_column(heading)
+    for r in records:
+        if "width" not in r:  # not an image: a sidecar, a calibration, or unreadable
+            table.add_row(Text(Path(r["path"]).name), Text(r["format"] if r["readable"] else "unreadable"))
+            continue
+        row = [
+            Path(r["path"]).name,
+            r["format"],
+            r.get("sensor") or ("?" if r["raw"] else "-"),
+            f"{r['width']}x{r['height']}",
+            r.get("pattern", "-"),
+            r["bit_depth"],
+            _levels(r.get("black_level")),
+            r.get("white_level", "-"),
+            _figure(r.get("exposure_time_s"), 1e3, " ms"),
+            _figure(r.get("analogue_gain")),
+            *([r.get("frames", "-")] if frames else []),
+        ]
+        # Text, not markup: a file's name or metadata may hold brackets that rich would take for markup.
+        table.add_row(*(Text(str(cell)) for cell in row))
+    stdout = stdout_console()
+    stdout.print(table)
+    for r in records:
+        name = Path(r["path"]).name
+        if "error" in r:
+            stdout.print(f"{name}: cannot read: {r['error']}", markup=False, highlight=False, soft_wrap=True)
+        if "note" in r:
+            stdout.print(f"{name}: not raw: {r['note']}", markup=False, highlight=False, soft_wrap=True)
+        for warning in r["warnings"]:
+            stdout.print(f"{name}: {warning}", style="yellow", markup=False, highlight=False, soft_wrap=True)
+
+
+def _levels(levels: list[float] | None) -> str:
+    if not levels:
+        return "-"
+    return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
+
+
+def _figure(value: Any, scale: float = 1.0, unit: str = "") -> str:
+    """A number of a file's metadata as the table shows it: "-" when absent or zero, as it is when not a number."""
+    if not value:
+        return "-"
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f"{scale * value:.3g}{unit}"
+    return str(value)

@@ -1,0 +1,173 @@
+"""The commands that run the whole method: ``simulate`` (a camera without one), ``acquire`` (the rig) and
+``demo``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from .._atomic import refuse_inputs_as_output
+from ._common import app, choice, console, in_range, parse_size, progress_bar, stdout_console
+
+
+@app.command("simulate")
+def simulate_cmd(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+    sensor: Annotated[
+        str, typer.Option(help="Any colour sensor of the registry: imx219, imx477, ov5647, imx708, ...")
+    ] = "imx219",
+    tilt: Annotated[tuple[float, float], typer.Option(help="Sensor tilt about x and y, degrees.")] = (0.0, 0.0),
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    pattern: Annotated[str | None, typer.Option(help="Bayer order (default: the sensor's).")] = None,
+    size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
+    noise: Annotated[bool, typer.Option(help="Shot and read noise.")] = True,
+    dust: Annotated[int, typer.Option(help="Number of dust specks on the white reference.")] = 0,
+    fmt: Annotated[str, typer.Option("--format", help="Raw format: dng, brcm (legacy JPEG+raw), npy, npz.")] = "dng",
+    overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
+) -> None:
+    """Simulate a calibration run: five references, `picamcal target`'s target filling the frame, the ground truth."""
+    from ..simulate import RAW_WRITERS, simulate_run
+
+    fmt = choice(fmt, list(RAW_WRITERS), "--format")
+    with console.status(f"simulating {sensor}"):
+        paths = simulate_run(
+            out,
+            sensor,
+            pattern=pattern,
+            size=parse_size(size),
+            tilt=tilt,
+            seed=seed,
+            noise=noise,
+            dust=dust,
+            fmt=fmt,
+            overwrite=overwrite,
+        )
+    console.print(f"wrote {len(paths)} files to {out}")
+
+
+@app.command("acquire")
+def acquire_cmd(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder of the run: created, or resumed if it holds one.")],
+    camera: Annotated[str, typer.Option(help="picamera2 (picamera2:N for camera N) or sim.")] = "picamera2",
+    illuminator: Annotated[
+        str, typer.Option(help="serial (serial:PORT), gpio (gpio:PIN, default D18), manual or sim.")
+    ] = "serial",
+    extra: Annotated[
+        list[str] | None,
+        typer.Option(help="An extra image at the same settings, e.g. target; asked for before each (repeatable)."),
+    ] = None,
+    target_fraction: Annotated[
+        float,
+        typer.Option(
+            help="Where the white's 99.9th percentile should land, as a fraction of full scale.",
+            callback=in_range(0, 1, above=True, below=True),
+        ),
+    ] = 0.8,
+    settle: Annotated[
+        float,
+        typer.Option(help="Seconds to wait after changing the light.", callback=in_range(0, 600, unit=" s")),
+    ] = 0.5,
+    max_exposure: Annotated[
+        float,
+        typer.Option(
+            help="Longest exposure time to use, in seconds.", callback=in_range(0, 3600, above=True, unit=" s")
+        ),
+    ] = 1.0,
+    sensor: Annotated[str, typer.Option(help="Simulated sensor (--camera sim).")] = "imx219",
+    size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed of the simulated camera.", callback=in_range(0))] = 0,
+) -> None:
+    """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black and extras."""
+    from ..acquire.acquisition import acquire, open_rig
+
+    def show(message: str, done: int, total: int) -> None:
+        # One line per step rather than a live bar, so it never draws over the prompts.
+        console.print(f"[{done}/{total}] {message}")
+
+    with open_rig(camera, illuminator, sensor=sensor, size=parse_size(size), seed=seed, prompt=input) as rig:
+        manifest = acquire(
+            rig.camera,
+            rig.illuminator,
+            out,
+            extras=extra or (),
+            target_fraction=target_fraction,
+            settle_s=settle,
+            max_exposure_s=max_exposure,
+            prompt=rig.prompt,
+            progress=show,
+        )
+    console.print(f"wrote {manifest}; calibrate with: picamcal calibrate {out}")
+
+
+@app.command("demo")
+def demo_cmd(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("picamcal-demo"),
+    sensor: Annotated[str, typer.Option(help="Simulated sensor.")] = "imx219",
+    size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    fmt: Annotated[
+        str, typer.Option("--format", help="Raw format of the simulated files: dng, brcm, npy, npz.")
+    ] = "dng",
+    tuning_base: Annotated[
+        list[Path] | None,
+        typer.Option(help="A libcamera tuning file to write the lens shading into (repeatable)."),
+    ] = None,
+    overwrite: Annotated[bool, typer.Option(help="Write into a folder that is not empty.")] = False,
+) -> None:
+    """Run the whole method on the simulated camera and print the figures before and after."""
+    from ..demo import STEPS, run_demo
+    from ..simulate import RAW_WRITERS
+
+    fmt = choice(fmt, list(RAW_WRITERS), "--format")
+    refuse_inputs_as_output(out, tuning_base or ())
+    with progress_bar() as progress:
+        task = progress.add_task("demo", total=len(STEPS))
+
+        def step(description: str) -> None:
+            progress.update(task, description=description, completed=STEPS.index(description))
+
+        figures = run_demo(
+            out,
+            sensor,
+            size=parse_size(size),
+            seed=seed,
+            fmt=fmt,
+            tuning_bases=tuning_base or (),
+            progress=step,
+            overwrite=overwrite,
+        )
+        progress.update(task, description="done", completed=len(STEPS))
+    size_text = f"{figures['size'][0]}x{figures['size'][1]}"
+    table = Table(title=f"picamcal demo: simulated {sensor} {size_text}, {fmt} files")
+    table.add_column("mode")
+    for heading in (
+        "white flatness CV %",
+        "corner ΔE2000 max",
+        "corner ΔE2000 mean",
+        "corner saturation",
+        "noise penalty",
+    ):
+        table.add_column(heading, justify="right")
+    for mode, row in figures["modes"].items():
+        table.add_row(
+            mode,
+            f"{row['white_flatness_percent']:.2f}",
+            f"{row['max_delta_e']:.2f}",
+            f"{row['mean_delta_e']:.2f}",
+            f"{row['corner_saturation_ratio']:.2f}",
+            f"{row['worst_noise_penalty']:.2f}",
+        )
+    stdout = stdout_console()
+    stdout.print(table)
+    for mode, meaning in figures["mode_meaning"].items():
+        stdout.print(f"  {mode}: {meaning}")
+    for name, record in figures["exports"].items():
+        stdout.print(f"  {name}: an independent white is flat to {record['white_flatness_percent']:.2f} % with it")
+    stdout.print(f"Calibration, previews (target_<mode>.png) and figures.json are in {out}/")
+    stdout.print(f"The report: {out / 'report' / 'index.html'}")
+
+
+#: picamcal's warnings of this command, and the lines libraries logged: printed when it ends well, and when it
