@@ -183,6 +183,81 @@ def test_extras_prompt_before_each_and_use_the_frozen_settings(tmp_path):
     np.testing.assert_array_equal(read_raw(tmp_path / "target.dng").bayer, target.bayer)
 
 
+def centre_mean(path: Path) -> np.ndarray:
+    """The black-subtracted mean of each 2x2 site over the central quarter of a frame (DN)."""
+    raw = read_raw(path)
+    signal = raw.black_subtracted()[60:180, 80:240]
+    return np.array([signal[k // 2 :: 2, k % 2 :: 2].mean(dtype=np.float64) for k in range(4)])
+
+
+def test_extra_colours_are_captured_after_the_five_at_the_frozen_settings(tmp_path, complete_run):
+    colours = {"cyan": (0, 255, 255), "Amber": (255, 191, 0)}
+    record = run(sim_camera(), tmp_path, colours=colours)
+    assert record["roles"] == [*REFERENCES, "colour_cyan", "colour_amber"] and record["complete"]
+    assert record["colours"] == {"colour_cyan": [0, 255, 255], "colour_amber": [255, 191, 0]}
+    entries = {e["role"]: e for e in record["entries"]}
+    assert entries["colour_amber"]["file"] == "colour_amber.dng" and entries["colour_amber"]["light"] == [255, 191, 0]
+    assert not any(e["extra"] for e in record["entries"])  # references, not test images
+    assert list(read_manifest(tmp_path)) == [*REFERENCES, "colour_cyan", "colour_amber"]
+    # The five are the frames of a run without colours: same frozen settings, same noise streams.
+    reference_folder, reference_record, _ = complete_run
+    assert record["settings"] == reference_record["settings"]
+    for role in REFERENCES:
+        np.testing.assert_array_equal(
+            read_raw(tmp_path / f"{role}.dng").bayer, read_raw(reference_folder / f"{role}.dng").bayer, err_msg=role
+        )
+    # Light adds: cyan is green plus blue, amber red plus 191/255 of green. Each mean is over 19200 pixels of a few
+    # hundred DN, so shot and read noise move it by well under 0.5 %.
+    mean = {role: centre_mean(tmp_path / f"{role}.dng") for role in (*REFERENCES, "colour_cyan", "colour_amber")}
+    np.testing.assert_allclose(mean["colour_cyan"], mean["green"] + mean["blue"], rtol=0.005)
+    np.testing.assert_allclose(mean["colour_amber"], mean["red"] + 191 / 255 * mean["green"], rtol=0.005)
+
+
+class _FailsOnCyan(SimIlluminator):
+    """A device that stops answering at the extra colour."""
+
+    def set_rgb(self, red, green, blue):
+        if (red, green, blue) == (0, 255, 255):
+            raise IlluminatorError("no answer from the illuminator on /dev/ttyACM0")
+        super().set_rgb(red, green, blue)
+
+
+def test_a_run_with_colours_resumes_with_the_colours_it_planned(tmp_path):
+    camera = sim_camera(light=_FailsOnCyan())
+    with pytest.raises(IlluminatorError, match="white, red, green, blue, black captured and kept"):
+        acquire(camera, camera.light, tmp_path, colours={"cyan": (0, 255, 255)}, settle_s=0)
+    assert load_manifest(tmp_path)["roles"][-1] == "colour_cyan"
+    with pytest.raises(
+        AcquisitionError, match=r"its colour cyan is \(0, 255, 255\), not \(0, 255, 254\); give --colour"
+    ):
+        run(sim_camera(), tmp_path, colours={"cyan": (0, 255, 254)})
+    again = _CountingSimCamera("imx219", size=SIZE, seed=SEED)
+    acquire(again, again.light, tmp_path, settle_s=0)  # the colour need not be given again
+    record = load_manifest(tmp_path)
+    assert again.captures == 1 and record["complete"] and record["entries"][-1]["light"] == [0, 255, 255]
+    # A colour added on a re-run is planned after those before it.
+    record = run(sim_camera(), tmp_path, colours={"cyan": (0, 255, 255), "magenta": (255, 0, 255)})
+    assert record["roles"][-2:] == ["colour_cyan", "colour_magenta"] and record["complete"]
+
+
+@pytest.mark.parametrize(
+    ("colours", "message"),
+    [
+        ({"cyan": (0, 256, 0)}, "R, G and B must be whole numbers from 0 to 255"),
+        ({"cyan": (0, 0.5, 0)}, "R, G and B must be whole numbers from 0 to 255"),
+        ({"cy an": (0, 255, 255)}, "the name must be 1 to 40 letters, digits or '-'"),
+        ({"cyan_2": (0, 255, 255)}, "the name must be 1 to 40 letters, digits or '-'"),
+        ({"Black": (1, 1, 1)}, "Black is a reference already"),
+        ({"cyan": (0, 255, 255), "CYAN": (0, 250, 250)}, "the colour CYAN is given twice"),
+    ],
+)
+def test_bad_colours_are_refused_before_anything_is_written(tmp_path, colours, message):
+    camera = sim_camera()
+    with pytest.raises(PicamcalError, match=message):
+        acquire(camera, camera.light, tmp_path / "run", colours=colours, settle_s=0)
+    assert not (tmp_path / "run").exists()
+
+
 class _FailsOnGreen(SimIlluminator):
     """A device that stops answering at the third colour."""
 
@@ -318,7 +393,7 @@ def test_read_manifest_refuses_an_incomplete_run(tmp_path):
 
 
 def test_the_sim_camera_goes_with_the_sim_illuminator_only():
-    with pytest.raises(PicamcalError, match="the sim camera sees only the sim illuminator"):
+    with pytest.raises(PicamcalError, match="the sim camera sees only the sim illuminator or a screen"):
         open_rig("sim", "manual")
     with pytest.raises(PicamcalError, match="the sim illuminator lights only the sim camera"):
         open_rig("picamera2", "sim")
@@ -338,6 +413,13 @@ def test_manual_illuminator_asks_for_each_new_colour():
         "Set the light to green (0, 255, 0) and press Enter",
     ]
     assert said == ["You can turn the light off now."] and light.describe() == {"kind": "manual"}
+    light = open_illuminator("manual", colours={"amber": (255, 191, 0)}, input_fn=asked.append)
+    light.set_rgb(255, 191, 0)
+    light.set_rgb(1, 2, 3)
+    assert asked[-2:] == [
+        "Set the light to amber (255, 191, 0) and press Enter",
+        "Set the light to the colour (1, 2, 3) and press Enter",
+    ]
 
     def closed_input(prompt):
         raise EOFError

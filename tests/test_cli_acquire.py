@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
 
 from picamcal import calibrate, load_calibration
+from picamcal.cli import main
 from picamcal.manifest import load_manifest
 from picamcal.simulate import make_camera, simulate_references
 from test_cli import assert_bad_input, run
@@ -53,3 +55,36 @@ def test_acquire_refuses_without_a_camera(tmp_path):
         "picamera2 is not installed",
     )
     assert not (tmp_path / "r").exists()
+
+
+def cli_mistake(args: list[str], monkeypatch, capfd) -> list[str]:
+    """Run the command line in this process (quick: each mistake is refused before any work); its stderr lines."""
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main's global settings are put back
+    with pytest.raises(SystemExit) as exit:
+        main(args)
+    assert exit.value.code == 2
+    return capfd.readouterr().err.splitlines()
+
+
+@pytest.mark.parametrize(
+    ("colours", "problem"),
+    [
+        (["cyan"], "'cyan' is not NAME=R,G,B (e.g. cyan=0,255,255)"),
+        (["cyan=0,255"], "'cyan=0,255' is not NAME=R,G,B (e.g. cyan=0,255,255)"),
+        (["cyan=0,255,300"], "'cyan=0,255,300': R, G and B must be whole numbers from 0 to 255"),
+        (["cyan=0,-1,255"], "'cyan=0,-1,255': R, G and B must be whole numbers from 0 to 255"),
+        (["cyan!=0,255,255"], "'cyan!=0,255,255': the name must be 1 to 40 letters, digits or '-' (it names the file)"),
+        (["green=0,255,0"], "'green=0,255,0': green is a reference already (white, red, green, blue, black); name the "
+         "extra colour otherwise"),
+        (["cyan=0,255,255", "Cyan=0,255,255"], "'Cyan=0,255,255': the colour Cyan is given twice"),
+    ],
+)  # fmt: skip
+def test_acquire_refuses_a_bad_colour_in_one_line_naming_the_option(tmp_path, monkeypatch, capfd, colours, problem):
+    out = tmp_path / "r"
+    args = ["acquire", "--camera", "sim", "--illuminator", "sim", "--out", str(out)]
+    for colour in colours:
+        args += ["--colour", colour]
+    assert cli_mistake(args, monkeypatch, capfd) == [
+        f"picamcal: error: Invalid value for --colour: {problem} (see picamcal acquire --help)"
+    ]
+    assert not out.exists()

@@ -24,6 +24,13 @@ from picamcal.references import find_references, read_manifest, role_of
         ("img_r255_g255_b0.dng", None),
         ("target.dng", None),
         ("redwhite.dng", None),
+        ("colour_cyan.dng", "colour_cyan"),
+        ("colour_cyan_2.dng", "colour_cyan"),
+        ("run3_Colour_LED-590_1.dng", "colour_led-590"),
+        ("colour_white.dng", "colour_white"),  # an extra named white, not the white
+        ("colour_cyan_white.dng", None),  # colour and a role: neither
+        ("colour_.dng", None),
+        ("colour.dng", None),
     ],
 )
 def test_role_of(name, role):
@@ -103,3 +110,52 @@ def test_a_manifest_without_the_colours_yet_is_an_incomplete_run(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps(manifest([{"role": "white", "file": "white.dng"}])))
     with pytest.raises(AcquisitionError, match=r"incomplete \(no red, green, blue yet\): run picamcal acquire again"):
         find_references(tmp_path)
+
+
+def test_extra_colour_references_are_found_by_name_frames_and_all(tmp_path):
+    names = (
+        "white.dng",
+        "red.dng",
+        "green.dng",
+        "blue.dng",
+        "colour_cyan.dng",
+        "colour_amber_2.dng",
+        "colour_amber_1.dng",
+        "colour_amber_10.dng",
+    )
+    for name in names:
+        (tmp_path / name).write_bytes(b"x")
+    found = find_references(tmp_path)
+    assert found["colour_cyan"].name == "colour_cyan.dng"
+    assert [p.name for p in found["colour_amber"]] == [
+        "colour_amber_1.dng",
+        "colour_amber_2.dng",
+        "colour_amber_10.dng",
+    ]
+    # In situ the colours come from the jig: extras are not looked for either.
+    assert set(find_references(tmp_path, in_situ=True)) == {"white"}
+
+
+def test_extra_colours_without_the_primaries_are_refused(tmp_path):
+    for name in ("white.dng", "colour_cyan.dng"):
+        (tmp_path / name).write_bytes(b"x")
+    with pytest.raises(CalibrationInputError, match=r"colour_cyan\.dng is an extra colour reference, but there is no"):
+        find_references(tmp_path)
+
+
+def test_a_manifest_lists_extra_colours_as_references(tmp_path):
+    files = {
+        "white": "white.dng",
+        "red": "red.dng",
+        "green": "green.dng",
+        "blue": "blue.dng",
+        "colour_cyan": "colour_cyan.dng",
+        "target": "target.dng",
+    }
+    for name in files.values():
+        (tmp_path / name).write_bytes(b"x")
+    record = manifest([{"role": role, "file": name} for role, name in files.items()])
+    record["roles"] = list(files)
+    (tmp_path / "manifest.json").write_text(json.dumps(record))
+    found = {role: path.name for role, path in find_references(tmp_path).items()}
+    assert found == {role: name for role, name in files.items() if role != "target"}

@@ -79,6 +79,11 @@ def test_report_renders_with_every_figure_in_a_real_browser(run_files, tmp_path)
     centre = record["test_images"][0]["analysis"]["centre"]["summary"]["max_delta_e"]
     flat = record["test_images"][0]["analysis"]["flat"]["summary"]["max_delta_e"]
     assert centre < 2.0 < flat  # noisy frames: the correction still brings the corners to the centre's colours
+    # Each test image gets a verdict with its thresholds stated and what the workflows of its kind reach.
+    verdict = record["test_images"][0]["verdict"]
+    assert verdict["mode"] == "centre" and verdict["verdict"] in ("pass", "warn", "fail")
+    assert verdict["max_delta_e"] == pytest.approx(centre)
+    assert "Verdict:" in dom and "pass at mean &lt;= 1" in html and "jig-monitor" in dom
 
 
 def test_a_missing_figure_is_seen_by_the_browser(tmp_path):

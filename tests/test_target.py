@@ -5,13 +5,23 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from picamcal.cli import main
 from picamcal.errors import OutputError, PicamcalError
-from picamcal.target import render_target, save_target, target_layout
+from picamcal.references import ROLES, parse_colours
+from picamcal.target import (
+    SCREEN_COLOURS,
+    is_screen_file,
+    render_target,
+    save_screens,
+    save_target,
+    target_layout,
+)
 
 NAMES = {"centre", "top-left", "top", "top-right", "left", "right", "bottom-left", "bottom", "bottom-right"}
 SIZES = [(1920, 1080), (1080, 1080), (3508, 2480), (640, 480), (1080, 1920)]
@@ -122,3 +132,138 @@ def test_save_target_refuses_other_suffixes_and_existing_files_when_asked(tmp_pa
 def test_too_small_a_target_is_refused():
     with pytest.raises(PicamcalError, match="at least 64"):
         target_layout(50, 400)
+
+
+# --- the full-screen references ----------------------------------------------------------------------------------
+
+SCREEN_FILES = [f"screen_{role}.png" for role in ROLES]
+
+
+def test_screens_are_flat_exact_srgb_colours_at_the_size_asked(tmp_path):
+    paths = save_screens(tmp_path / "screens", 1366, 768, {"cyan": (0, 255, 255), "Amber": (255, 191, 1)})
+    assert [p.name for p in paths] == [*SCREEN_FILES, "screen_colour_cyan.png", "screen_colour_amber.png"]
+    expected = [*SCREEN_COLOURS.values(), (0, 255, 255), (255, 191, 1)]
+    for path, rgb in zip(paths, expected, strict=True):
+        with Image.open(path) as image:
+            # 8-bit RGB, tagged sRGB (rendering intent 0), every pixel the exact code values: nothing dithered.
+            assert (image.format, image.mode, image.size, image.info["srgb"]) == ("PNG", "RGB", (1366, 768), 0)
+            pixels = np.asarray(image)
+        assert np.all(pixels == np.array(rgb, dtype=np.uint8)), path.name
+        assert is_screen_file(path)
+    assert SCREEN_COLOURS == {
+        "white": (255, 255, 255),
+        "red": (255, 0, 0),
+        "green": (0, 255, 0),
+        "blue": (0, 0, 255),
+        "black": (0, 0, 0),
+    }
+    assert list(SCREEN_COLOURS) == list(ROLES)
+
+
+def test_screens_never_replace_what_picamcal_did_not_write(tmp_path):
+    save_screens(tmp_path, 64, 48)
+    with pytest.raises(OutputError, match=r"screen_white.png: exists already \(use --overwrite"):
+        save_screens(tmp_path, 32, 32)
+    save_screens(tmp_path, 32, 32, overwrite=True)
+    with Image.open(tmp_path / "screen_red.png") as image:
+        assert image.size == (32, 32)
+    Image.new("RGB", (64, 48), (0, 0, 255)).save(tmp_path / "screen_blue.png")  # a PNG someone else made
+    with pytest.raises(OutputError, match=r"screen_blue\.png: exists and is not a screen picamcal wrote"):
+        save_screens(tmp_path, 64, 48, overwrite=True)
+    with Image.open(tmp_path / "screen_red.png") as image:
+        assert image.size == (32, 32)  # refused before anything was written
+    assert not is_screen_file(tmp_path / "screen_blue.png") and not is_screen_file(tmp_path)
+    save_target(tmp_path / "wheels.png", 320, 240)
+    assert not is_screen_file(tmp_path / "wheels.png")  # a target is not a screen
+
+
+def test_screen_sizes_and_colours_are_checked(tmp_path, monkeypatch):
+    with pytest.raises(PicamcalError, match="at least one pixel each way, got 0 x 10"):
+        save_screens(tmp_path, 0, 10)
+    monkeypatch.setenv("PICAMCAL_MAX_PIXELS", "1000")
+    with pytest.raises(PicamcalError, match="a screen of 64x48 pixels is over the limit"):
+        save_screens(tmp_path, 64, 48)
+    monkeypatch.delenv("PICAMCAL_MAX_PIXELS")
+    with pytest.raises(PicamcalError, match="R, G and B must be whole numbers from 0 to 255"):
+        save_screens(tmp_path, 64, 48, {"cyan": (0, 255, 256)})
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("specs", "message"),
+    [
+        (["cyan 0,255,255"], "is not NAME=R,G,B"),
+        (["cyan=0,255,255,0"], "is not NAME=R,G,B"),
+        (["cyan=a,b,c"], "R, G and B must be whole numbers from 0 to 255"),
+        (["cyan=0,255,1e2"], "R, G and B must be whole numbers from 0 to 255"),
+        (["cyan=0,255,٣"], "R, G and B must be whole numbers from 0 to 255"),  # an Arabic-Indic three
+        (["=0,255,255"], "the name must be 1 to 40 letters, digits or '-'"),
+        (["é=0,255,255"], "the name must be 1 to 40 letters, digits or '-'"),
+        (["x" * 41 + "=0,255,255"], "the name must be 1 to 40 letters, digits or '-'"),
+        (["WHITE=1,1,1"], "WHITE is a reference already"),
+        (["a=1,2,3", "A=1,2,3"], "the colour A is given twice"),
+    ],
+)
+def test_parse_colours_refuses_in_one_line(specs, message):
+    with pytest.raises(PicamcalError, match=message) as refused:
+        parse_colours(specs)
+    assert "\n" not in str(refused.value)
+
+
+def test_parse_colours_keeps_the_order_and_the_values():
+    assert parse_colours([" led-590 = 255, 140 ,0", "cyan=0,255,255"]) == {
+        "led-590": (255, 140, 0),
+        "cyan": (0, 255, 255),
+    }
+
+
+def target_cli(args: list[str], monkeypatch, capfd) -> tuple[int, list[str]]:
+    """``picamcal target ARGS`` in this process: its exit status and its stderr lines."""
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main's global settings are put back
+    with pytest.raises(SystemExit) as exit:
+        main(["target", *args])
+    return exit.value.code, capfd.readouterr().err.splitlines()
+
+
+def test_target_screens_writes_a_folder_of_screens_or_the_screens_beside_the_target(tmp_path, monkeypatch, capfd):
+    code, _ = target_cli(
+        ["--screens", "--out", str(tmp_path / "shows"), "--size", "64x48", "--colour", "cyan=0,255,255"],
+        monkeypatch,
+        capfd,
+    )
+    assert code == 0
+    assert sorted(p.name for p in (tmp_path / "shows").iterdir()) == sorted([*SCREEN_FILES, "screen_colour_cyan.png"])
+    code, _ = target_cli(
+        ["--screens", "--out", str(tmp_path / "both" / "t.png"), "--size", "320x240"], monkeypatch, capfd
+    )
+    assert code == 0
+    assert sorted(p.name for p in (tmp_path / "both").iterdir()) == sorted([*SCREEN_FILES, "t.json", "t.png"])
+    with Image.open(tmp_path / "both" / "screen_green.png") as image:
+        assert image.size == (320, 240)
+
+
+def test_target_screens_refuses_in_one_line_before_writing(tmp_path, monkeypatch, capfd):
+    shows = str(tmp_path / "shows")
+    mistakes = {
+        ("--out", shows, "--colour", "cyan=0,255,255"): "Invalid value for --colour: it names a full-screen colour: "
+        "give --screens too",
+        ("--screens", "--out", shows, "--colour", "cyan=0,255"): "Invalid value for --colour: 'cyan=0,255' is not "
+        "NAME=R,G,B (e.g. cyan=0,255,255)",
+        ("--screens", "--out", shows, "--colour", "blue=0,0,255"): "Invalid value for --colour: 'blue=0,0,255': blue "
+        "is a reference already (white, red, green, blue, black); name the extra colour otherwise",
+        ("--out", shows): "Invalid value for --out: the target is written as .png or .pdf",
+    }
+    for args, line in mistakes.items():
+        assert target_cli(list(args), monkeypatch, capfd) == (
+            2,
+            [f"picamcal: error: {line} (see picamcal target --help)"],
+        )
+    assert not (tmp_path / "shows").exists()
+    (tmp_path / "file").write_text("not a folder")
+    code, lines = target_cli(["--screens", "--out", str(tmp_path / "file")], monkeypatch, capfd)
+    assert (code, lines) == (2, [f"picamcal: error: {tmp_path / 'file'}: cannot create the folder: File exists"])
+    save_screens(tmp_path / "shows", 64, 48)
+    code, lines = target_cli(["--screens", "--out", str(tmp_path / "shows" / "t.png")], monkeypatch, capfd)
+    assert (code, lines) == (2, [f"picamcal: error: {tmp_path / 'shows' / 'screen_white.png'}: exists already (use "
+                                 "--overwrite to replace it)"])  # fmt: skip
+    assert not (tmp_path / "shows" / "t.png").exists()  # the target is not written either

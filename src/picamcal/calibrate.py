@@ -19,7 +19,7 @@ import dataclasses
 import math
 import os
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -30,11 +30,12 @@ from scipy import ndimage
 from ._version import __version__
 from .bayer import bin_sites, centre_region, sites_to_channels
 from .calibration import Calibration
+from .calibration.fitting import least_squares_unmixing, noise_limited_unmixing
 from .errors import CalibrationFileError, CalibrationInputError, PicamcalWarning
 from .raw import RawImage, read_raw
 from .raw.model import require_black_level
 from .records import sha256_file
-from .references import COLOURS
+from .references import COLOUR_NAME, COLOURS, colour_role
 
 #: Fraction of clipped white pixels above which the white is refused.
 MAX_CLIPPED_FRACTION = 1e-4
@@ -301,6 +302,8 @@ def _load_reference(
 
 def _fill_ill_conditioned(fields: list[np.ndarray], bad: np.ndarray) -> None:
     """Replace the values of bad bins by those of the nearest good bin, in place."""
+    if not bad.any():
+        return
     _, (iy, ix) = ndimage.distance_transform_edt(bad, return_indices=True)
     for f in fields:
         f[bad] = f[iy[bad], ix[bad]]
@@ -313,6 +316,8 @@ def calibrate(
     blue: Frames | None = None,
     black: Frames | None = None,
     *,
+    colours: Mapping[str, Frames] | None = None,
+    max_noise_penalty: float | None = None,
     bin_size: int = 16,
     smoothing: float = 0.0,
 ) -> Calibration:
@@ -321,6 +326,25 @@ def calibrate(
     With red, green and blue references the calibration is ``full`` (every correction mode); with the
     white alone (and optionally a dark frame) it is a ``flat`` calibration: the flat field and colour
     balance, for modes ``uncorrected`` and ``flat``, the lens shading exports and the report.
+
+    Extra colour references (``colours``: LED mixtures, a monitor's own colours) make each bin's unmixing a
+    least-squares fit over all K references instead of the paper's exact inversion of three
+    (:func:`picamcal.calibration.fitting.least_squares_unmixing`, docs/method.md): ``U(b)`` maps each
+    reference's white-normalised response in bin b as nearly as it can onto that reference's colour at the
+    centre (the columns of ``M_centre`` for red, green and blue; the mean over the central ninth for an extra),
+    the white exactly. Each reference's error is taken relative to its own brightness (weight
+    ``1 / |r_k(centre)|^2``), so a dim one counts as much as a bright one. With red, green and blue alone this
+    is the paper's ``U(b) = M_centre inv(M(b))``, computed as before. ``pure`` stays ``Cx U(b)`` with
+    ``Cx = inv(M_centre)`` from the red, green and blue references (the primaries are theirs), and the stored
+    crosstalk is ``M(b) = inv(U(b)) M_centre``, what the fit implies. Each colour reference's fit error (RMS
+    over the bins of ``|P_k U r_k| / |r_k|``) is recorded as ``fit_residual`` in its ``inputs`` entry.
+
+    ``max_noise_penalty`` bounds the centre mode's noise penalty (:meth:`Calibration.noise_penalty`, worst
+    channel): where a bin's would exceed it, its unmixing is blended towards the flat-field-only correction,
+    as little as meets the bound and smoothly across bins
+    (:func:`picamcal.calibration.fitting.limit_noise_penalty`). The colour cost is the crosstalk this leaves,
+    :meth:`Calibration.residual_crosstalk`; the bound and a summary are recorded in the provenance's
+    ``noise_limit`` (:attr:`Calibration.noise_limit`).
 
     Parameters
     ----------
@@ -335,6 +359,12 @@ def calibrate(
         A dark frame at the same settings; subtracted bin by bin, and its per-site median becomes the
         calibration's black level (``black_level_source == "dark frame"``), so references and
         images whose black level is unknown (NaN) can be used. Without it each file's black level is used.
+    colours : mapping of str to RawImage or path, or a sequence of them, optional
+        Extra colour references by name (letters, digits and ``-``; role ``colour_<name>`` in ``inputs``), each
+        under uniform light of another colour, taken with the same settings; they need red, green and blue.
+    max_noise_penalty : float, optional
+        The worst noise penalty the centre mode may have, at least 1 and at least the flat field's own worst
+        penalty (its vignetting, ``max W_p(centre) / W_p(b)``); none by default. Needs the colour references.
     bin_size : int
         Bin edge in sensor pixels (even); the paper uses 16.
     smoothing : float
@@ -351,7 +381,12 @@ def calibrate(
     CalibrationInputError
         References of different size or pattern, a saturated or too-dark white, black brighter than
         white, only some of the colour references, too many bins whose colour response cannot be inverted, or a
-        smoothing out of range.
+        smoothing out of range. Extra colour references without red, green and blue, with a bad or repeated
+        name, too dark (brightest site's median under :data:`REFUSE_WHITE_FRACTION` of the range) or identical
+        to another colour reference (the red, green and blue references, which must separate the colours as
+        without extras, already span three colours; an extra adds a constraint, never a dimension). A
+        ``max_noise_penalty`` below 1, not finite, without colour references, or below the flat field's own
+        worst penalty.
     RawFormatError
         A reference whose black level is unknown, without a dark frame.
 
@@ -373,27 +408,111 @@ def calibrate(
     >>> flat = calibrate([render(camera, "white", rng=k) for k in (1, 2)], black=refs["black"])  # two white frames
     >>> flat.kind, [mode.value for mode in flat.modes], flat.inputs[0]["frame_count"]
     ('flat', ['uncorrected', 'flat'], 2)
+
+    Two extra references (mixtures of the LEDs), and a bound on the noise penalty:
+
+    >>> extras = {"cyan": render(camera, (0, 1, 1), rng=7), "amber": render(camera, (1, 0.5, 0), rng=8)}
+    >>> bounded = calibrate(**refs, colours=extras, max_noise_penalty=2.5)
+    >>> [i["role"] for i in bounded.inputs]
+    ['white', 'red', 'green', 'blue', 'colour_cyan', 'colour_amber', 'black']
+    >>> bool(bounded.noise_penalty("centre").max() <= 2.5), bounded.noise_limit["max_noise_penalty"]
+    (True, 2.5)
     """
     if bin_size < 2 or bin_size % 2:
         raise CalibrationInputError(f"bin size must be an even number of pixels >= 2, got {bin_size}")
     check_smoothing(smoothing)
-    colours = dict(zip(COLOURS, (red, green, blue), strict=True))
-    missing = [role for role, ref in colours.items() if ref is None]
+    check_noise_bound(max_noise_penalty)
+    primaries = dict(zip(COLOURS, (red, green, blue), strict=True))
+    missing = [role for role, ref in primaries.items() if ref is None]
     if 0 < len(missing) < 3:
         raise CalibrationInputError(
             f"no {' or '.join(missing)} reference: give red, green and blue references together, or none of them "
             "for a flat-field calibration (white only)"
         )
-    named = {"white": white, **colours, "black": black}
+    extras = _colour_roles(colours or {})
+    if missing and (extras or max_noise_penalty is not None):
+        what = "extra colour references" if extras else "a noise-penalty bound (--max-noise-penalty)"
+        raise CalibrationInputError(f"{what} need the colour unmixing: give red, green and blue references too")
+    named = {"white": white, **primaries, **extras, "black": black}
     refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, bin_size, smoothing)
+    lights = refs[:-1] if black is not None else refs
+    _check_distinct(lights)
     site_responses, black_level = _binned_responses(refs, black is not None, smoothing)
     arrays = _derive(site_responses, refs[0].raw.pattern, refs[1].raw.source if len(site_responses) > 1 else "")
+    fit_residual = arrays.pop("fit_residual", None)
+    if fit_residual is not None:
+        for ref, residual in zip(lights[1:], fit_residual, strict=True):
+            ref.info["fit_residual"] = round(float(np.sqrt(np.nanmean(residual**2))), 6)
+    provenance = _provenance(refs, [r.info for r in refs])
+    if max_noise_penalty is not None:
+        y0, y1, x0, x1 = centre_region(*site_responses.shape[1:3])
+        channel_white = arrays["white"].astype(np.float64)
+        arrays["unmixing"], provenance["noise_limit"] = noise_limited_unmixing(
+            arrays["unmixing"],
+            arrays["crosstalk"],
+            arrays["colour_response_inverse"],
+            channel_white,
+            channel_white[y0:y1, x0:x1].reshape(-1, 3).mean(axis=0),
+            max_noise_penalty,
+        )
+        if provenance["noise_limit"]["limited_bins"]:  # else the field is unchanged, and so is inv(M)
+            arrays["pure_unmixing"] = (arrays["colour_response_inverse"] @ arrays["unmixing"]).astype(np.float32)
     return Calibration(
         kind="full" if "unmixing" in arrays else "flat",
         **_record(refs, bin_size, smoothing, black_level),
-        provenance=_provenance(refs, [r.info for r in refs]),
+        provenance=provenance,
         **arrays,
     )
+
+
+def check_noise_bound(max_noise_penalty: float | None) -> None:
+    """Raise unless ``max_noise_penalty`` is None or a finite number >= 1 (1: no amplification of noise at all).
+
+    Examples
+    --------
+    >>> check_noise_bound(2.5)
+    >>> check_noise_bound(0.5)
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.CalibrationInputError: max noise penalty 0.5 is out of range (--max-noise-penalty): give a \
+number >= 1, the factor by which the correction may multiply noise at worst (1 = not at all)
+    """
+    if max_noise_penalty is not None and not (math.isfinite(max_noise_penalty) and max_noise_penalty >= 1):
+        raise CalibrationInputError(
+            f"max noise penalty {max_noise_penalty:g} is out of range (--max-noise-penalty): give a number >= 1, "
+            "the factor by which the correction may multiply noise at worst (1 = not at all)"
+        )
+
+
+def _colour_roles(colours: Mapping[str, Frames]) -> dict[str, Frames]:
+    """The extra colour references by role, ``colour_<name>`` (names checked, lower case)."""
+    roles: dict[str, Frames] = {}
+    for name, ref in colours.items():
+        if not isinstance(name, str) or not COLOUR_NAME.fullmatch(name):
+            raise CalibrationInputError(
+                f"colour reference name {str(name)[:40]!r} is not a name of letters, digits and '-' (e.g. cyan)"
+            )
+        role = colour_role(name)
+        if role in roles:
+            raise CalibrationInputError(f"two colour references are named {name.lower()}: give each colour once")
+        roles[role] = ref
+    return roles
+
+
+def _check_distinct(lights: list[_Reference]) -> None:
+    """Refuse an extra colour reference identical (bin for bin) to another colour reference: it adds no colour."""
+    colours = lights[1:]
+    for index, ref in enumerate(colours):
+        if not ref.role.startswith("colour_"):
+            continue
+        for other in colours[:index]:
+            if np.array_equal(ref.sites, other.sites):
+                raise CalibrationInputError(
+                    f"the {ref.role} reference is identical to the {other.role} reference "
+                    f"({other.info.get('name')}): two references of one colour do not span three colours; give "
+                    "each colour once",
+                    ref.raw.source,
+                )
 
 
 def calibrate_in_situ(
@@ -467,6 +586,8 @@ def calibrate_in_situ(
         info.update(name=Path(unmixing_from).name, sha256=sha256_file(Path(unmixing_from)))
     provenance = _provenance(refs, [*(r.info for r in refs), info])
     provenance["in_situ"] = {"unmixing_from": info, "jig_inputs": [i.get("name") for i in jig.inputs]}
+    if jig.noise_limit is not None:  # the jig's bounded unmixing carries over; its bound was met with the jig's white
+        provenance["in_situ"]["jig_noise_limit"] = jig.noise_limit
     return dataclasses.replace(
         jig,
         **_record(refs, jig.bin_size, smoothing, black_level),
@@ -520,6 +641,13 @@ def _binned_responses(
         fraction = (ref.sites - below) / (ref.raw.white_level - black)
         ref.info["median_fraction"] = round(float(np.median(fraction)), 5)
         ref.info["p99_fraction"] = round(float(np.percentile(fraction, 99.9)), 5)
+        peak = float(np.median(fraction.reshape(-1, 4), axis=0).max())
+        if ref.role.startswith("colour_") and peak < REFUSE_WHITE_FRACTION:
+            raise CalibrationInputError(
+                f"{ref.role} reference is too dark: its brightest site's median is {100 * peak:.1f} % of the range "
+                f"(at least {100 * REFUSE_WHITE_FRACTION:.0f} % needed); increase the light or the exposure",
+                ref.raw.source,
+            )
     signal = float(np.median(refs[0].sites - black_sites[0]))
     if signal <= 0:
         raise CalibrationInputError("white reference is not brighter than black", white.source)
@@ -554,22 +682,67 @@ def _flat_field(site_white: np.ndarray, pattern: str) -> dict[str, Any]:
 
 def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dict[str, Any]:
     """Every array of the calibration by name, from the binned responses: of the white alone (a flat calibration),
-    or of the white, red, green and blue references (a full one)."""
-    arrays = {"site_responses": site_responses.astype(np.float32), **_flat_field(site_responses[0], pattern)}
+    or of the white, red, green and blue references and any extra colours (a full one; then ``fit_residual``,
+    each colour reference's error per bin, too when there are extras)."""
+    arrays = {"site_responses": site_responses[:4].astype(np.float32), **_flat_field(site_responses[0], pattern)}
     if len(site_responses) == 1:
         return arrays
     # float32 is what the calibration stores, and inverting in it is several times faster.
-    m = crosstalk_matrices(site_responses, pattern).astype(np.float32)
+    m = crosstalk_matrices(site_responses[:4], pattern).astype(np.float32)
     pure, _ = invert_3x3(m)
-    condition = np.sqrt((m**2).sum(axis=(-1, -2)) * (pure**2).sum(axis=(-1, -2)))
+    condition = _condition(m, pure)
     bad = ~np.isfinite(condition) | (condition > REFUSE_CONDITION) | ~np.isfinite(m).all(axis=(-1, -2))
+    _refuse_or_warn(bad, colour_source, "the red, green and blue references do not separate the colours")
+    _fill_ill_conditioned([m, pure], bad)
+    condition = np.where(bad, np.nan, condition)
+    _fill_ill_conditioned([condition], bad)
+    nby, nbx = site_responses.shape[1:3]
+    y0, y1, x0, x1 = centre_region(nby, nbx)
+    m_centre = m[y0:y1, x0:x1].reshape(-1, 3, 3).mean(axis=0)
+    cx, _ = invert_3x3(m_centre)
+    unmixing = m_centre @ pure
+    if len(site_responses) > 4:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            responses = sites_to_channels(site_responses[1:] / site_responses[0], pattern)  # (K, nby, nbx, 3)
+        centre = responses[:, y0:y1, x0:x1].reshape(len(responses), -1, 3).mean(axis=1)
+        targets = np.concatenate([m_centre.T, centre[3:]])  # the primaries' own colours: the columns of M_centre
+        fitted, residual = least_squares_unmixing(responses, targets, 1 / (centre**2).sum(axis=-1))
+        unmixing = fitted.astype(np.float32)
+        m, _ = invert_3x3(unmixing)
+        m = (m @ m_centre).astype(np.float32)  # M(b) = inv(U(b)) M_centre, the crosstalk the fit implies
+        pure = (cx @ unmixing).astype(np.float32)
+        condition = _condition(m, pure)
+        worse = ~bad & (~np.isfinite(condition) | (condition > REFUSE_CONDITION) | ~np.isfinite(unmixing).all((-1, -2)))
+        _refuse_or_warn(worse, colour_source, "the colour references do not separate the colours", bad)
+        bad |= worse
+        _fill_ill_conditioned([m, pure, unmixing, condition], bad)
+        arrays["fit_residual"] = residual
+    return {
+        **arrays,
+        "crosstalk": m.astype(np.float32),
+        "unmixing": unmixing.astype(np.float32),
+        "pure_unmixing": pure.astype(np.float32),
+        "condition_number": condition.astype(np.float32),
+        "ill_conditioned": bad,
+        "centre_response": m_centre.astype(np.float64),
+        "colour_response_inverse": cx.astype(np.float64),
+    }
+
+
+def _condition(m: np.ndarray, inverse: np.ndarray) -> np.ndarray:
+    """Frobenius condition number per bin, ``|M| |inv(M)|``."""
+    return np.sqrt((m**2).sum(axis=(-1, -2)) * (inverse**2).sum(axis=(-1, -2)))
+
+
+def _refuse_or_warn(bad: np.ndarray, source: str, refusal: str, already: np.ndarray | None = None) -> None:
+    """Refuse when more than a quarter of the bins (with those ``already`` bad) cannot be trusted; warn for a few."""
     nbad = int(np.count_nonzero(bad))
-    if nbad > 0.25 * bad.size:
+    total = nbad + (0 if already is None else int(np.count_nonzero(already)))
+    if total > 0.25 * bad.size:
         raise CalibrationInputError(
-            f"the red, green and blue references do not separate the colours: {nbad} of {bad.size} bins have an "
-            f"ill-conditioned crosstalk matrix (condition > {REFUSE_CONDITION:g}); check the illumination colours "
-            "and the Bayer order (--pattern)",
-            colour_source,
+            f"{refusal}: {total} of {bad.size} bins have an ill-conditioned crosstalk matrix (condition > "
+            f"{REFUSE_CONDITION:g}); check the illumination colours and the Bayer order (--pattern)",
+            source,
         )
     if nbad:
         ys, xs = np.nonzero(bad)
@@ -577,25 +750,8 @@ def _derive(site_responses: np.ndarray, pattern: str, colour_source: str) -> dic
             f"{nbad} of {bad.size} bins have an ill-conditioned crosstalk matrix (condition > {REFUSE_CONDITION:g}), "
             f"in bins y {ys.min()}..{ys.max()}, x {xs.min()}..{xs.max()}; filled from their nearest good neighbours",
             PicamcalWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
-        _fill_ill_conditioned([m, pure], bad)
-        condition = np.where(bad, np.nan, condition)
-        _fill_ill_conditioned([condition], bad)
-    nby, nbx = site_responses.shape[1:3]
-    y0, y1, x0, x1 = centre_region(nby, nbx)
-    m_centre = m[y0:y1, x0:x1].reshape(-1, 3, 3).mean(axis=0)
-    cx, _ = invert_3x3(m_centre)
-    return {
-        **arrays,
-        "crosstalk": m.astype(np.float32),
-        "unmixing": (m_centre @ pure).astype(np.float32),
-        "pure_unmixing": pure.astype(np.float32),
-        "condition_number": condition.astype(np.float32),
-        "ill_conditioned": bad,
-        "centre_response": m_centre.astype(np.float64),
-        "colour_response_inverse": cx.astype(np.float64),
-    }
 
 
 def _record(refs: list[_Reference], bin_size: int, smoothing: float, black_level: tuple[float, ...]) -> dict[str, Any]:

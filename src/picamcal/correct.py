@@ -292,6 +292,7 @@ def correct_processed(
     ccm: np.ndarray | None = None,
     crop: tuple[int, int, int, int] | None = None,
     isp_gains: np.ndarray | None = None,
+    colour_gains: tuple[float, float] | np.ndarray | None = None,
 ) -> np.ndarray:
     """Correct a processed (ISP output) image: apply only what the camera's pipeline did not.
 
@@ -321,8 +322,18 @@ def correct_processed(
     isp_gains : ndarray (H, W, 3), optional
         The lens shading gains the ISP applied, per image pixel (from a tuning file:
         :func:`picamcal.export.isp.lens_shading_gains`). The residual between them and this
-        calibration's flat field is divided out (normalised at the centre, so the image keeps its
-        brightness and colour balance there).
+        calibration's flat field is divided out, normalised at the centre so that the image keeps its
+        brightness there, and without ``colour_gains`` its colour balance there too. Not used with ``white``,
+        which went through the same gains (dividing by it removes them).
+    colour_gains : (red, blue), optional
+        Used with ``isp_gains`` only: the white balance gains the ISP applied after its lens shading (the camera's
+        frozen ``ColourGains``). They are divided out with the ISP's gains and the calibration's white, so
+        the white reference becomes neutral everywhere and the unmixing acts on the channels as on the raw
+        path (:func:`correct`). Without them the ISP's colour balance at the centre is kept, which is right
+        only if the white was neutral there (white balance frozen on the white with the same tuning loaded);
+        any other balance tints the white by the ISP's gains at the centre and the unmixing, which acts on
+        white-normalised channels, then mixes the wrong amounts (:func:`picamcal.export.isp.processed_inputs`
+        gives them).
 
     Returns
     -------
@@ -373,14 +384,23 @@ def correct_processed(
         rgb /= upsample(means, ay, ax).astype(np.float32)
     cy, cx = calibration.bin_centres
     image_centres = ((cy - y0 + 0.5) / scale_y - 0.5, (cx - x0 + 0.5) / scale_x - 0.5)
-    if isp_gains is not None:
-        if isp_gains.shape != rgb.shape:
-            raise PicamcalError(f"ISP gains of shape {isp_gains.shape} do not match the {width}x{height} image", source)
+    if isp_gains is not None and isp_gains.shape != rgb.shape:
+        raise PicamcalError(f"ISP gains of shape {isp_gains.shape} do not match the {width}x{height} image", source)
+    # A processed white went through the same lens shading and colour gains: dividing by it removed them already.
+    if isp_gains is not None and white is None:
         ay = interpolation_matrix(image_centres[0], np.arange(height))
         ax = interpolation_matrix(image_centres[1], np.arange(width))
         residual = 1.0 / (upsample(calibration.white.astype(np.float64), ay, ax) * isp_gains)
         top, bottom, left, right = centre_region(height, width)  # the central ninth, in image pixels
-        rgb *= (residual / residual[top:bottom, left:right].mean(axis=(0, 1))).astype(np.float32)
+        centre = residual[top:bottom, left:right].mean(axis=(0, 1))
+        if colour_gains is not None:
+            red, blue = np.asarray(colour_gains, dtype=np.float64).reshape(2)
+            if not (red > 0 and blue > 0 and np.isfinite(red + blue)):
+                raise PicamcalError(f"colour gains must be two positive numbers, not {red:g}, {blue:g}", source)
+            # One scale for all three channels: the white comes out neutral, as the raw path's does.
+            residual /= np.array([red, 1.0, blue])
+            centre = np.full(3, centre[1])
+        rgb *= (residual / centre).astype(np.float32)
     matrices = calibration.matrices(mode)
     if matrices is not None:
         apply_matrix_field(rgb, matrices, image_centres)

@@ -4,19 +4,37 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
 
-from .errors import CalibrationInputError
+from .errors import CalibrationInputError, PicamcalError
 from .manifest import MANIFEST_NAME, AcquisitionError, load_manifest
 from .raw import HEADLESS_SUFFIXES, RAW_SUFFIXES
 
-__all__ = ["COLOURS", "ROLES", "find_references", "read_manifest", "role_of"]
+__all__ = [
+    "COLOURS",
+    "COLOUR_NAME",
+    "MAX_COLOUR_NAME",
+    "ROLES",
+    "colour_name",
+    "colour_role",
+    "find_references",
+    "parse_colours",
+    "read_manifest",
+    "role_of",
+]
 
 #: The roles of the reference images, in the order they are captured: the white, the three colours, the black
 #: (LED off). The one list of them: calibration, acquisition, simulator and command line all use it.
 ROLES = ("white", "red", "green", "blue", "black")
 #: The colour references, each lit by one primary of the illuminator.
 COLOURS = ("red", "green", "blue")
+#: The name of an extra colour reference (role ``colour_<name>``: an LED mixture, a screen colour): letters, digits
+#: and ``-``.
+COLOUR_NAME = re.compile(r"[A-Za-z0-9-]+")
+_COLOUR_PREFIX = "colour_"
+# An extra colour reference's file: ``colour_<name>``, a frame number ``_<n>`` after it, a prefix before it.
+_COLOUR_FILE = re.compile(r"(?:^|.*[^a-z0-9])colour_([a-z0-9-]+)(?:_\d+)?")
 # What an acquisition must have captured before it can be calibrated.
 _REQUIRED = ("white", *COLOURS)
 # Every raw file a reference can be: headless dumps too, as calibrate takes their sensor and size as options.
@@ -24,18 +42,48 @@ _REFERENCE_SUFFIXES = frozenset((*RAW_SUFFIXES, *HEADLESS_SUFFIXES))
 _PAPER_STYLE = re.compile(r"r(\d+)_g(\d+)_b(\d+)", re.IGNORECASE)
 
 
+def colour_role(name: str) -> str:
+    """The role of the extra colour reference called ``name``: ``colour_<name>``, in lower case.
+
+    Examples
+    --------
+    >>> colour_role("Cyan")
+    'colour_cyan'
+    """
+    return _COLOUR_PREFIX + name.lower()
+
+
+def colour_name(role: str) -> str | None:
+    """The name of an extra colour reference's role (``colour_cyan`` -> ``cyan``), or None for any other role.
+
+    Examples
+    --------
+    >>> colour_name("colour_amber"), colour_name("red"), colour_name("colour_")
+    ('amber', None, None)
+    """
+    name = role[len(_COLOUR_PREFIX) :] if role.startswith(_COLOUR_PREFIX) else ""
+    return name if COLOUR_NAME.fullmatch(name) else None
+
+
 def role_of(name: str) -> str | None:
     """The reference role a file name stands for, or None.
 
     Names hold the role as a word (``white.dng``, ``run3_red.dng``, ``white_2.dng``) or, as in the paper's
     code, the LED setting (``..._r255_g0_b0.dng`` is red, all equal and non-zero is white, all zero is black).
+    An extra colour reference is ``colour_<name>`` (``colour_cyan.dng``, ``colour_cyan_2.dng``,
+    ``run3_colour_amber.dng``); a name that holds ``colour`` otherwise stands for no role.
 
     Examples
     --------
     >>> role_of("capture_r0_g255_b0.dng"), role_of("White.DNG"), role_of("white_2.raw"), role_of("target.dng")
     ('green', 'white', 'white', None)
+    >>> role_of("colour_cyan_2.dng"), role_of("run3_Colour_LED-590.dng"), role_of("colour_white_x.dng")
+    ('colour_cyan', 'colour_led-590', None)
     """
     stem = Path(name).stem.lower()
+    colour = _COLOUR_FILE.fullmatch(stem)
+    if colour:
+        return colour_role(colour.group(1))
     match = _PAPER_STYLE.search(stem)
     if match:
         r, g, b = (int(v) for v in match.groups())
@@ -44,6 +92,8 @@ def role_of(name: str) -> str | None:
         lit = [role for role, v in zip(COLOURS, (r, g, b), strict=True) if v > 0]
         return lit[0] if len(lit) == 1 else None
     words = set(re.split(r"[^a-z0-9]+", stem))
+    if "colour" in words:
+        return None
     found = [role for role in ROLES if role in words]
     return found[0] if len(found) == 1 else None
 
@@ -62,12 +112,14 @@ def read_manifest(folder: str | os.PathLike[str], *, extras: bool = False) -> di
         A folder written by :func:`picamcal.acquire.acquisition.acquire`, with its ``manifest.json``
         (:func:`picamcal.manifest.load_manifest`).
     extras : bool
-        Also return the extra images (test targets); by default only the references (:data:`ROLES`).
+        Also return the extra images (test targets); by default only the references (:data:`ROLES` and extra
+        colour references, ``colour_<name>``).
 
     Returns
     -------
     dict of str to Path
-        ``white``, ``red``, ``green``, ``blue`` and (when captured) ``black``, in capture order.
+        ``white``, ``red``, ``green``, ``blue``, any ``colour_<name>`` and (when captured) ``black``, in capture
+        order.
 
     Raises
     ------
@@ -90,7 +142,11 @@ def read_manifest(folder: str | os.PathLike[str], *, extras: bool = False) -> di
     """
     folder = Path(folder)
     record = load_manifest(folder)
-    files = {e["role"]: folder / e["file"] for e in record["entries"] if extras or e["role"] in ROLES}
+    files = {
+        e["role"]: folder / e["file"]
+        for e in record["entries"]
+        if extras or e["role"] in ROLES or colour_name(e["role"])
+    }
     missing = [role for role in _REQUIRED if role not in files]
     if missing:
         raise AcquisitionError(
@@ -109,7 +165,8 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
 
     The white is required and the black optional. Red, green and blue come all three (a full calibration) or
     not at all (a flat-field calibration from the white alone); with ``in_situ`` (the colours come from a
-    jig calibration) they are not looked for. Several files of one role (``white_1.dng``, ``white_2.dng``,
+    jig calibration) they are not looked for, nor are extra colour references (``colour_<name>.dng``, roles
+    ``colour_<name>``, :func:`role_of`). Several files of one role (``white_1.dng``, ``white_2.dng``,
     ...) are frames to average: that role maps to a list of them, in natural name order. A folder written
     by ``picamcal acquire`` is read through its ``manifest.json``, which names each file's role.
 
@@ -132,6 +189,9 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     >>> _ = Path("white_2.dng").write_bytes(b"")
     >>> [path.name for path in find_references(".")["white"]]
     ['white.dng', 'white_2.dng']
+    >>> _ = Path("colour_cyan.dng").write_bytes(b"")
+    >>> find_references(".")["colour_cyan"].name
+    'colour_cyan.dng'
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -146,7 +206,7 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     for path in entries:
         # is_file follows links and is False for a FIFO, a device or a symlink loop: those are left out
         role = role_of(path.name) if path.suffix.lower() in _REFERENCE_SUFFIXES and path.is_file() else None
-        if role and not (in_situ and role in COLOURS):
+        if role and not (in_situ and (role in COLOURS or colour_name(role))):
             found.setdefault(role, []).append(path)
     if "white" not in found:
         what = "white" if found else "white, red, green, blue or black"
@@ -156,6 +216,13 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
             folder,
         )
     missing = [role for role in COLOURS if role not in found]
+    extra = next((role for role in found if colour_name(role)), None)
+    if len(missing) == 3 and extra:
+        raise CalibrationInputError(
+            f"{found[extra][0].name} is an extra colour reference, but there is no red, green or blue: extra "
+            "colours refine the unmixing of the three primaries' references, give those too",
+            folder,
+        )
     if len(missing) in (1, 2):
         raise CalibrationInputError(
             f"no {', '.join(missing)} reference found: give red, green and blue references together, or none "
@@ -163,3 +230,60 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
             folder,
         )
     return {role: paths[0] if len(paths) == 1 else paths for role, paths in found.items()}
+
+
+#: The longest name of an extra colour, in characters: it names files.
+MAX_COLOUR_NAME = 40
+
+
+def parse_colours(specs: Iterable[str]) -> dict[str, tuple[int, int, int]]:
+    """Extra colours given as ``NAME=R,G,B`` (``--colour``), name -> (R, G, B) in 0-255, in the order given.
+
+    Each becomes the reference ``colour_NAME`` (:func:`picamcal.references.colour_role`, in lower case): a
+    full-screen ``screen_colour_NAME.png``, or the illuminator set to that RGB in ``picamcal acquire``.
+
+    Parameters
+    ----------
+    specs : iterable of str
+        ``NAME=R,G,B``: a name of letters, digits and ``-`` (at most 40), not a reference's name
+        (:data:`picamcal.references.ROLES`), and three whole numbers 0-255.
+
+    Raises
+    ------
+    PicamcalError
+        One line naming the faulty specification: not ``NAME=R,G,B``, a value outside 0-255, a name of other
+        characters, a reference's name, or a name given twice (names differing only in case count as the same:
+        they would be the same file on some file systems).
+
+    Examples
+    --------
+    >>> parse_colours(["cyan=0,255,255", "amber=255,191,0"])
+    {'cyan': (0, 255, 255), 'amber': (255, 191, 0)}
+    >>> parse_colours(["red=255,0,0"])
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: 'red=255,0,0': red is a reference already (white, red, green, blue, black); \
+name the extra colour otherwise
+    """
+    colours: dict[str, tuple[int, int, int]] = {}
+    for spec in specs:
+        name, equals, values = spec.partition("=")
+        name = name.strip()
+        numbers = [v.strip() for v in values.split(",")]
+        if not equals or len(numbers) != 3:
+            raise PicamcalError(f"{spec!r} is not NAME=R,G,B (e.g. cyan=0,255,255)")
+        if not COLOUR_NAME.fullmatch(name) or len(name) > MAX_COLOUR_NAME:
+            raise PicamcalError(
+                f"{spec!r}: the name must be 1 to {MAX_COLOUR_NAME} letters, digits or '-' (it names the file)"
+            )
+        if name.lower() in ROLES:
+            raise PicamcalError(
+                f"{spec!r}: {name} is a reference already ({', '.join(ROLES)}); name the extra colour otherwise"
+            )
+        if not all(v.isascii() and v.isdigit() and int(v) <= 255 for v in numbers):
+            raise PicamcalError(f"{spec!r}: R, G and B must be whole numbers from 0 to 255")
+        if name.lower() in (given.lower() for given in colours):
+            raise PicamcalError(f"{spec!r}: the colour {name} is given twice")
+        r, g, b = (int(v) for v in numbers)
+        colours[name] = (r, g, b)
+    return colours

@@ -1,10 +1,15 @@
-"""The colour-wheel test target as files to display or print: ``picamcal target``.
+"""The colour-wheel test target and the full-screen references as files to display or print: ``picamcal target``.
 
 The target itself (nine wheels of six segments and five fiducial marks) is defined once in
 :mod:`picamcal.colour_wheel`, which the simulator photographs and :mod:`picamcal.analysis.wheels` looks
 for. This module lays it out on a screen or page of a printable size (:func:`target_layout`), encodes it as
 8-bit sRGB (:func:`render_target`) and writes it as a PNG or PDF with its layout beside it
 (:func:`save_target`), marked so that ``--overwrite`` knows a file it wrote (:func:`is_target_file`).
+
+The full-screen references (:func:`save_screens`) are one flat colour each, ``screen_white.png``,
+``screen_red.png``, ... (:data:`SCREEN_COLOURS`) and ``screen_colour_NAME.png`` for extra colours
+(:func:`picamcal.references.parse_colours`): shown full-screen on a monitor and photographed through the optics,
+they calibrate in the monitor's own spectra.
 
 Coordinates are in pixels of the rendering, with pixel centres at integer coordinates, the convention of
 :mod:`picamcal.analysis.metrics`; angles are ``atan2(-(y - cy), x - cx)`` in degrees, counter-clockwise from
@@ -25,9 +30,20 @@ from PIL import Image, PngImagePlugin
 from ._atomic import atomic_path
 from .analysis.metrics import encode_srgb
 from .colour_wheel import wheel_layout, wheel_scene
-from .errors import PicamcalError
+from .errors import OutputError, PicamcalError
+from .limits import MAX_PIXELS_VARIABLE, max_pixels
+from .references import colour_role, parse_colours
 
-__all__ = ["is_target_file", "render_target", "save_target", "target_layout"]
+__all__ = [
+    "SCREEN_COLOURS",
+    "is_screen_file",
+    "is_target_file",
+    "render_target",
+    "save_screens",
+    "save_target",
+    "screen_name",
+    "target_layout",
+]
 
 
 _MIN_SIZE = 64  # pixels, below which the marks are too small to find
@@ -35,6 +51,18 @@ _PDF_PAGE_WIDTH_IN = 11.69  # A4 landscape: the PDF page is the target, this wid
 #: What the PNG's Software text and the PDF's Creator say, so that --overwrite knows a target it wrote.
 _CREATOR = "picamcal colour-wheel target"
 _PDF_TAIL = 1 << 16  # matplotlib writes the document information (Creator) after the image, at the end
+#: What a full-screen reference's PNG Software text says, so that --overwrite knows a screen it wrote.
+_SCREEN_CREATOR = "picamcal full-screen reference"
+
+#: The colour (8-bit sRGB code values) each reference role (:data:`picamcal.references.ROLES`) is shown in
+#: full-screen: every primary at full drive for white, one primary for each colour, none for black.
+SCREEN_COLOURS: dict[str, tuple[int, int, int]] = {
+    "white": (255, 255, 255),
+    "red": (255, 0, 0),
+    "green": (0, 255, 0),
+    "blue": (0, 0, 255),
+    "black": (0, 0, 0),
+}
 
 
 def target_layout(width: int = 1920, height: int = 1080) -> dict[str, Any]:
@@ -224,3 +252,116 @@ def is_target_file(path: str | os.PathLike[str]) -> bool:
         except OSError:
             return False
     return False
+
+
+def screen_name(role: str) -> str:
+    """The file name of a role's full-screen reference: ``screen_ROLE.png`` (``screen_colour_cyan.png``, ...).
+
+    Examples
+    --------
+    >>> screen_name("red"), screen_name("colour_cyan")
+    ('screen_red.png', 'screen_colour_cyan.png')
+    """
+    return f"screen_{role}.png"
+
+
+def save_screens(
+    folder: str | os.PathLike[str],
+    width: int = 1920,
+    height: int = 1080,
+    colours: Mapping[str, tuple[int, int, int]] | None = None,
+    *,
+    overwrite: bool = False,
+) -> list[Path]:
+    """Write the full-screen references to show on a monitor: one flat colour each, exactly, at its size.
+
+    ``screen_white.png``, ``screen_red.png``, ``screen_green.png``, ``screen_blue.png`` and
+    ``screen_black.png`` (:data:`SCREEN_COLOURS`), then ``screen_colour_NAME.png`` for each extra colour: 8-bit
+    RGB PNGs tagged sRGB, every pixel the exact code values (no dithering, no colour management). Shown
+    full-screen and photographed through the optics they are the references of an in-situ calibration in the
+    monitor's own spectra (``picamcal acquire --illuminator screen`` shows the same colours by itself). Each file
+    is written atomically.
+
+    Parameters
+    ----------
+    folder : path-like
+        Created if missing.
+    width, height : int, default 1920 and 1080
+        The monitor's resolution in pixels (a smaller image scaled up shows the same colour, but some viewers
+        leave a border).
+    colours : mapping, optional
+        Extra colours, name -> (R, G, B) 0-255 (:func:`picamcal.references.parse_colours`); the names are
+        letters, digits and ``-``.
+    overwrite : bool, default False
+        Replace existing files (only those :func:`is_screen_file` recognises; anything else is refused).
+
+    Returns
+    -------
+    list of Path
+        The files, references first.
+
+    Raises
+    ------
+    PicamcalError
+        A side below one pixel, more pixels than :func:`picamcal.limits.max_pixels`, or a bad extra colour.
+    OutputError
+        A file exists (without ``overwrite``, or not a screen picamcal wrote), or cannot be written.
+
+    Examples
+    --------
+    >>> paths = save_screens("screens", 64, 48, {"cyan": (0, 255, 255)})
+    >>> [p.name for p in paths]  # doctest: +NORMALIZE_WHITESPACE
+    ['screen_white.png', 'screen_red.png', 'screen_green.png', 'screen_blue.png', 'screen_black.png',
+     'screen_colour_cyan.png']
+    >>> image = Image.open(paths[-1])
+    >>> image.size, image.getextrema(), image.info["srgb"]
+    ((64, 48), ((0, 0), (255, 255), (255, 255)), 0)
+    """
+    width, height = int(width), int(height)
+    if min(width, height) < 1:
+        raise PicamcalError(f"a screen needs at least one pixel each way, got {width} x {height}")
+    if width * height > max_pixels():
+        raise PicamcalError(
+            f"a screen of {width}x{height} pixels is over the limit of {max_pixels() // 1_000_000} MP "
+            f"(set {MAX_PIXELS_VARIABLE} to write larger images)"
+        )
+    extra = parse_colours(f"{name}={r},{g},{b}" for name, (r, g, b) in (colours or {}).items())
+    shown = {**SCREEN_COLOURS, **{colour_role(name): rgb for name, rgb in extra.items()}}
+    out = Path(folder)
+    paths = [out / screen_name(role) for role in shown]
+    for path in paths:  # all refused before any is written
+        if path.exists() and not overwrite:
+            raise OutputError("exists already (use --overwrite to replace it)", path)
+        if path.exists() and not is_screen_file(path):
+            raise OutputError("exists and is not a screen picamcal wrote; --overwrite does not replace it", path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", _SCREEN_CREATOR)
+    info.add(b"sRGB", b"\x00")  # the sRGB chunk, rendering intent perceptual: the code values are sRGB
+    for path, rgb in zip(paths, shown.values(), strict=True):
+        # Image.new fills exactly; "RGB" is 8 bits a channel, so no quantisation or dithering happens.
+        with atomic_path(path, overwrite=overwrite) as tmp:
+            Image.new("RGB", (width, height), rgb).save(tmp, format="PNG", pnginfo=info, optimize=True)
+    return paths
+
+
+def is_screen_file(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a full-screen reference that :func:`save_screens` wrote.
+
+    Examples
+    --------
+    >>> paths = save_screens("screens", 64, 48)
+    >>> is_screen_file(paths[0]), is_screen_file(__file__)
+    (True, False)
+    """
+    path = Path(path)
+    if not path.is_file() or path.suffix.lower() != ".png":  # a FIFO would block the read
+        return False
+    try:
+        with Image.open(path) as image:
+            return image.format == "PNG" and image.info.get("Software") == _SCREEN_CREATOR
+    except (OSError, ValueError, Image.DecompressionBombError):
+        return False

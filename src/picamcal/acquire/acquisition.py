@@ -4,6 +4,7 @@ This follows the paper's section "Measurements" and FORMATS.md section 7. With t
 (no adaptive lens shading), :func:`auto_expose` finds from the raw data the exposure that puts a high
 percentile of the black-subtracted white at a target fraction of the range without clipping; exposure, gain and
 white balance are then frozen and :func:`acquire` captures white, red, green, blue and black (LED off), then any
+extra colours (``colour_NAME``, the illuminator set to that RGB: an LED mixture, a full-screen colour), then any
 extra named images (a test target) with the same settings, prompting the user before each. Each frame is saved
 as ``ROLE.dng`` with a ``ROLE.json`` sidecar, and ``manifest.json`` lists what has been captured after every
 frame, so an interrupted run keeps its files and a re-run resumes where it stopped. :func:`read_manifest` gives
@@ -40,10 +41,10 @@ from ..manifest import FRAME_FORMAT, MANIFEST_FORMAT, MANIFEST_NAME, MANIFEST_VE
 from ..raw.dng import write_dng
 from ..raw.model import RawImage
 from ..records import json_default, sha256_file
-from ..references import read_manifest, role_of
-from .base import Illuminator
+from ..references import colour_name, colour_role, parse_colours, read_manifest, role_of
+from .base import Illuminator, IlluminatorError, check_rgb
 from .cameras import Camera, SimCamera, open_camera
-from .illuminators import REFERENCE_LIGHTS, open_illuminator
+from .illuminators import REFERENCE_LIGHTS, SimIlluminator, open_illuminator
 
 __all__ = [
     "MANIFEST_NAME",
@@ -233,6 +234,36 @@ def _check_extras(extras: Iterable[str]) -> list[str]:
     return names
 
 
+def _colour_lights(
+    record: Mapping[str, Any] | None, given: Mapping[str, tuple[int, int, int]], folder: Path
+) -> dict[str, tuple[int, int, int]]:
+    """The light of each extra colour's role ``colour_NAME``: those of the run being resumed, then the new ones.
+
+    A colour given again must have the RGB it was planned with (its frames would not match otherwise).
+    """
+    lights: dict[str, tuple[int, int, int]] = {}
+    planned = (record or {}).get("colours") or {}
+    if not isinstance(planned, dict):
+        raise AcquisitionError(f"the manifest's colours are not a mapping; move {MANIFEST_NAME} away", folder)
+    for role, light in planned.items():
+        try:
+            lights[str(role)] = check_rgb(*light)
+        except (TypeError, IlluminatorError):
+            raise AcquisitionError(
+                f"the manifest's colour {role} is not R, G, B; move {MANIFEST_NAME} away", folder
+            ) from None
+    for name, light in given.items():
+        role = colour_role(name)
+        if lights.get(role, light) != light:
+            raise AcquisitionError(
+                f"cannot resume this run: its colour {name} is {lights[role]}, not {light}; give --colour "
+                f"{name}={','.join(map(str, lights[role]))} or use another --out for a new run",
+                folder,
+            )
+        lights[role] = light
+    return lights
+
+
 def _rig_mismatch(record: Mapping[str, Any], camera: Camera, illuminator: Illuminator) -> str | None:
     """Why this camera and illuminator cannot continue the run of ``record``, or None."""
     before, now = record.get("camera") or {}, camera.describe()
@@ -275,7 +306,7 @@ def _save_frame(
         "sha256": sha256_file(path),
         "time": _now(),
         "light": list(light),
-        "extra": role not in REFERENCE_LIGHTS,
+        "extra": role not in REFERENCE_LIGHTS and colour_name(role) is None,
     }
     sidecar = {
         "format": FRAME_FORMAT,
@@ -291,7 +322,12 @@ def _save_frame(
 
 
 def _new_record(
-    camera: Camera, illuminator: Illuminator, found: Mapping[str, Any], plan: list[str], settle_s: float
+    camera: Camera,
+    illuminator: Illuminator,
+    found: Mapping[str, Any],
+    plan: list[str],
+    colours: Mapping[str, tuple[int, int, int]],
+    settle_s: float,
 ) -> dict[str, Any]:
     """The manifest of a new run, its settings frozen by :func:`auto_expose`, nothing captured yet."""
     return {
@@ -308,6 +344,7 @@ def _new_record(
         },
         "settle_s": settle_s,
         "roles": plan,
+        "colours": {role: list(light) for role, light in colours.items()},
         "entries": [],
         "complete": False,
     }
@@ -336,6 +373,7 @@ def acquire(
     illuminator: Illuminator,
     out_dir: str | os.PathLike[str],
     *,
+    colours: Mapping[str, tuple[int, int, int]] | None = None,
     extras: Iterable[str] = (),
     target_fraction: float = 0.8,
     percentile: float = 99.9,
@@ -344,10 +382,11 @@ def acquire(
     prompt: Callable[[str], Any] = input,
     progress: Callable[[str, int, int], Any] | None = None,
 ) -> Path:
-    """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black and extras.
+    """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black, colours, extras.
 
     The camera is configured (``configure_raw``), the light set to white, and :func:`auto_expose` finds and
-    freezes the exposure, gain and colour gains. Then for each illumination the light is set, the
+    freezes the exposure, gain and colour gains. Then for each illumination (the five references, then each
+    extra colour as the reference ``colour_NAME``) the light is set, the
     acquisition waits ``settle_s`` and captures one raw frame, saved as ``ROLE.dng`` and ``ROLE.json``; each
     extra (under white light) is preceded by ``prompt("Put the NAME in front of the camera and press Enter")``.
     ``manifest.json`` (see the module's description) is written once the settings are frozen and after every
@@ -355,7 +394,8 @@ def acquire(
 
     A folder with a manifest is a run to resume: its frozen settings are used again (no auto-exposure), the
     frames listed and unchanged are kept, and only the missing ones are captured; the camera (kind, sensor,
-    size) and the illuminator kind must be those of the run.
+    size) and the illuminator kind must be those of the run, and a colour given again its RGB (the manifest's
+    ``colours`` keeps the planned ones, so a re-run needs not repeat them).
 
     Parameters
     ----------
@@ -364,6 +404,9 @@ def acquire(
     illuminator : Illuminator
     out_dir : path-like
         The run's folder, created if missing.
+    colours : mapping, optional
+        Extra colours, name -> (R, G, B) 0-255 (:func:`picamcal.references.parse_colours`): each is captured as the
+        reference ``colour_NAME`` (``colour_NAME.dng``) with the illuminator set to that RGB, after the five.
     extras : iterable of str
         Names of extra images (``target``): letters, digits, ``-`` and ``_``; not a reference's name.
     target_fraction, percentile, max_exposure_s
@@ -399,8 +442,13 @@ def acquire(
     >>> manifest = acquire(camera, camera.light, "run1", settle_s=0)
     >>> manifest.name, sorted(read_manifest("run1"))
     ('manifest.json', ['black', 'blue', 'green', 'red', 'white'])
+    >>> _ = acquire(camera, camera.light, "run2", colours={"cyan": (0, 255, 255)}, settle_s=0)
+    >>> record = load_manifest("run2")
+    >>> record["roles"][-1], record["entries"][-1]["file"], record["entries"][-1]["light"]
+    ('colour_cyan', 'colour_cyan.dng', [0, 255, 255])
     """
     extra_names = _check_extras(extras)
+    given = parse_colours(f"{name}={r},{g},{b}" for name, (r, g, b) in (colours or {}).items())
     if settle_s < 0:
         raise AcquisitionError(f"the settling time must be >= 0 s, got {settle_s}")
     folder = Path(out_dir)
@@ -409,8 +457,10 @@ def acquire(
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"cannot create the folder: {exc.strerror or exc}", folder) from exc
-    plan = [*REFERENCE_LIGHTS, *extra_names]
     record = load_manifest(folder) if manifest.exists() else None
+    colour_lights = _colour_lights(record, given, folder)
+    lights = {**REFERENCE_LIGHTS, **colour_lights}
+    plan = [*REFERENCE_LIGHTS, *colour_lights, *extra_names]
     if record is None:
         clash = [
             f"{role}{suffix}"
@@ -427,9 +477,10 @@ def acquire(
         if why:
             raise AcquisitionError(f"cannot resume this run: {why}; use another --out for a new run", folder)
         record["entries"] = _kept_entries(record, folder)
-        # A re-run captures what was planned before and any new extras.
+        # A re-run captures what was planned before and any new colours and extras.
         plan = [*record["roles"], *(role for role in plan if role not in record["roles"])]
         record["roles"] = plan
+        record["colours"] = {role: list(light) for role, light in colour_lights.items()}
     captured = {e["role"] for e in record["entries"]} if record else set()
     todo = [role for role in plan if role not in captured]
     report = progress or (lambda message, done, total: None)
@@ -443,7 +494,7 @@ def acquire(
             found = auto_expose(
                 camera, target_fraction=target_fraction, percentile=percentile, max_exposure_s=max_exposure_s
             )
-            record = _new_record(camera, illuminator, found, plan, settle_s)
+            record = _new_record(camera, illuminator, found, plan, colour_lights, settle_s)
             _write_json(manifest, record)
         else:
             report(f"resuming: {len(captured)} of {len(plan)} captured", len(captured), len(plan))
@@ -452,9 +503,9 @@ def acquire(
                 settings["exposure_time_us"], settings["analogue_gain"], tuple(settings["colour_gains"])
             )
         for role in todo:
-            light = REFERENCE_LIGHTS.get(role, REFERENCE_LIGHTS["white"])
+            light = lights.get(role, REFERENCE_LIGHTS["white"])
             illuminator.set_rgb(*light)
-            if role not in REFERENCE_LIGHTS:
+            if role not in lights:
                 prompt(f"Put the {role} in front of the camera and press Enter")
             time.sleep(settle_s)
             entry = _save_frame(folder, role, camera.capture(), light, record)
@@ -475,6 +526,27 @@ def acquire(
             exc.args = (f"{exc.args[0]}; {hint}", *exc.args[1:])
         raise
     return manifest
+
+
+class _ShownToSim:
+    """A screen the simulated camera looks at: each colour is shown on the screen and lights the simulated scene."""
+
+    def __init__(self, screen: Illuminator, light: SimIlluminator) -> None:
+        self._screen = screen
+        self._light = light
+
+    def set_rgb(self, red: int, green: int, blue: int) -> None:
+        self._screen.set_rgb(red, green, blue)
+        self._light.set_rgb(red, green, blue)
+
+    def close(self) -> None:
+        try:
+            self._screen.close()
+        finally:
+            self._light.close()
+
+    def describe(self) -> dict[str, Any]:
+        return {**self._screen.describe(), "seen_by": "sim"}
 
 
 @dataclass
@@ -519,21 +591,29 @@ def open_rig(
     sensor: str = "imx219",
     size: tuple[int, int] | None = None,
     seed: int = 0,
+    colours: Mapping[str, tuple[int, int, int]] | None = None,
     prompt: Callable[[str], Any] = input,
 ) -> Rig:
-    """Open the camera and illuminator named on the command line (``sim`` goes with ``sim`` only).
+    """Open the camera and illuminator named on the command line (``sim`` goes with ``sim`` or a screen only).
+
+    The simulated camera with the ``screen`` illuminator sees what the screen shows: each colour goes to the
+    screen (a window, or a prompt) and lights the simulated scene, so the screen illuminator runs end to end
+    without a Pi.
 
     Parameters
     ----------
     camera : str
         ``picamera2[:N]`` or ``sim`` (:func:`~picamcal.acquire.cameras.open_camera`).
     illuminator : str
-        ``serial[:PORT]``, ``gpio[:PIN]``, ``manual`` or ``sim``
+        ``serial[:PORT]``, ``gpio[:PIN]``, ``screen[:DISPLAY]``, ``screen:prompt``, ``manual`` or ``sim``
         (:func:`~picamcal.acquire.illuminators.open_illuminator`).
     sensor, size, seed
         Of the simulated camera.
+    colours : mapping, optional
+        The run's extra colours, name -> (R, G, B), for the screen's prompts.
     prompt : callable
-        Asks the user before each extra image (real cameras).
+        Asks the user before each extra image (real cameras), and before each colour for the ``manual`` and the
+        prompting ``screen`` illuminators.
 
     Raises
     ------
@@ -545,11 +625,19 @@ def open_rig(
     >>> with open_rig("sim", "sim", size=(64, 48)) as rig:
     ...     rig.camera.describe()["kind"], rig.illuminator.describe()["kind"]
     ('sim', 'sim')
+    >>> with open_rig("sim", "screen:prompt", size=(64, 48), prompt=lambda text: print(text) or "") as rig:
+    ...     rig.illuminator.set_rgb(255, 0, 0)
+    ...     rig.camera.light.rgb
+    Show screen_red.png full-screen, then press Enter
+    (255, 0, 0)
+    You can close the full-screen image now.
     """
     sim_camera, sim_light = camera.strip().lower() == "sim", illuminator.strip().lower() == "sim"
-    if sim_camera != sim_light:
+    screen = illuminator.strip().lower().partition(":")[0] == "screen"
+    if sim_camera != sim_light and not (sim_camera and screen):
         raise PicamcalError(
-            "the sim camera sees only the sim illuminator: use --camera sim with --illuminator sim"
+            "the sim camera sees only the sim illuminator or a screen: use --camera sim with --illuminator sim "
+            "or screen"
             if sim_camera
             else "the sim illuminator lights only the sim camera: use --camera sim with --illuminator sim"
         )
@@ -560,10 +648,13 @@ def open_rig(
             simulated.place(wheel_scene(wheel_layout(*simulated.describe()["size"])))
             return ""
 
+        if screen:
+            shown = _ShownToSim(open_illuminator(illuminator, colours=colours, input_fn=prompt), simulated.light)
+            return Rig(simulated, shown, place_target)
         return Rig(simulated, simulated.light, place_target)
     opened = open_camera(camera)
     try:
-        return Rig(opened, open_illuminator(illuminator), prompt)
+        return Rig(opened, open_illuminator(illuminator, colours=colours, input_fn=prompt), prompt)
     except BaseException:
         opened.close()
         raise

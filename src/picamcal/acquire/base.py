@@ -16,8 +16,8 @@ class IlluminatorError(PicamcalError):
 class Illuminator(Protocol):
     """A light source that can be set to an RGB colour (0-255 each), as the paper's NeoPixel rig.
 
-    Implementations: ``serial`` (the paper's Arduino), ``gpio`` (a NeoPixel on a Pi pin), ``manual``
-    (asks the user) and ``sim`` (drives the simulated camera).
+    Implementations: ``serial`` (the paper's Arduino), ``gpio`` (a NeoPixel on a Pi pin), ``screen`` (a
+    monitor, full-screen), ``manual`` (asks the user) and ``sim`` (drives the simulated camera).
     """
 
     def set_rgb(self, red: int, green: int, blue: int) -> None:

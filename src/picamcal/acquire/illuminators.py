@@ -1,13 +1,14 @@
 """Illuminators behind the :class:`~picamcal.acquire.base.Illuminator` interface (FORMATS.md section 7).
 
 ``serial`` (the paper's Arduino, :mod:`picamcal.acquire.serial_illuminator`), ``gpio`` (a NeoPixel on a Pi
-pin through the CircuitPython NeoPixel library, an optional extra), ``manual`` (asks the user) and ``sim``
-(the light the simulated camera sees). :func:`open_illuminator` opens one from its command-line name.
+pin through the CircuitPython NeoPixel library, an optional extra), ``screen`` (the colours full-screen on a
+monitor, :mod:`picamcal.acquire.screen`), ``manual`` (asks the user) and ``sim`` (the light the simulated camera
+sees). :func:`open_illuminator` opens one from its command-line name.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -78,18 +79,31 @@ class ManualIlluminator:
         Shows a prompt and waits for Enter (``input``).
     output : callable
         Prints a message (``print``).
+    colours : mapping, optional
+        The run's extra colours, name -> (R, G, B), so that the question names them.
 
     Examples
     --------
-    >>> light = ManualIlluminator(input_fn=lambda prompt: print(prompt) or "")
+    >>> light = ManualIlluminator(input_fn=lambda prompt: print(prompt) or "", colours={"cyan": (0, 255, 255)})
     >>> light.set_rgb(255, 0, 0)
     Set the light to red (255, 0, 0) and press Enter
     >>> light.set_rgb(255, 0, 0)  # already red: no question
+    >>> light.set_rgb(0, 255, 255)
+    Set the light to cyan (0, 255, 255) and press Enter
     """
 
-    def __init__(self, input_fn: Callable[[str], Any] = input, output: Callable[[str], Any] = print) -> None:
+    def __init__(
+        self,
+        input_fn: Callable[[str], Any] = input,
+        output: Callable[[str], Any] = print,
+        colours: Mapping[str, tuple[int, int, int]] | None = None,
+    ) -> None:
         self._input = input_fn
         self._output = output
+        self._names: dict[tuple[int, int, int], str] = {
+            **_NAMES,
+            **{check_rgb(*rgb): name for name, rgb in (colours or {}).items()},
+        }
         self.rgb: tuple[int, int, int] | None = None
 
     def set_rgb(self, red: int, green: int, blue: int) -> None:
@@ -100,7 +114,7 @@ class ManualIlluminator:
         if rgb == (0, 0, 0):
             question = f"Turn the light off {rgb} and press Enter"
         else:
-            question = f"Set the light to {_NAMES.get(rgb, 'the colour')} {rgb} and press Enter"
+            question = f"Set the light to {self._names.get(rgb, 'the colour')} {rgb} and press Enter"
         try:
             self._input(question)
         except EOFError:
@@ -190,14 +204,24 @@ class GpioIlluminator:
         return {"kind": "gpio", "pin": self.pin, "count": self.count, "pixel_order": self.pixel_order}
 
 
-def open_illuminator(spec: str) -> Illuminator:
+def open_illuminator(
+    spec: str,
+    *,
+    colours: Mapping[str, tuple[int, int, int]] | None = None,
+    input_fn: Callable[[str], Any] = input,
+) -> Illuminator:
     """Open an illuminator named on the command line.
 
     Parameters
     ----------
     spec : str
-        ``serial`` (find the Arduino) or ``serial:PORT``; ``gpio`` (pin D18) or ``gpio:PIN``; ``manual``;
-        ``sim``.
+        ``serial`` (find the Arduino) or ``serial:PORT``; ``gpio`` (pin D18) or ``gpio:PIN``; ``screen`` (a
+        full-screen window on ``$DISPLAY``, else prompts to show the images), ``screen:DISPLAY`` or
+        ``screen:prompt`` (:func:`~picamcal.acquire.screen.open_screen`); ``manual``; ``sim``.
+    colours : mapping, optional
+        The run's extra colours, name -> (R, G, B): ``manual`` and the screen's prompts name them.
+    input_fn : callable
+        What ``manual`` and the screen's prompts wait on (``input``).
 
     Raises
     ------
@@ -208,6 +232,8 @@ def open_illuminator(spec: str) -> Illuminator:
     --------
     >>> open_illuminator("sim").describe()
     {'kind': 'sim'}
+    >>> open_illuminator("screen:prompt").describe()
+    {'kind': 'screen', 'shows': 'prompt'}
     """
     kind, colon, argument = spec.partition(":")
     kind = kind.strip().lower()
@@ -217,6 +243,13 @@ def open_illuminator(spec: str) -> Illuminator:
         return open_serial_illuminator(spec)
     if kind == "gpio":
         return GpioIlluminator(argument or "D18")
+    if kind == "screen":
+        from .screen import open_screen
+
+        return open_screen(argument.strip() or None, colours=colours, input_fn=input_fn)
     if kind in ("manual", "sim") and not colon:
-        return ManualIlluminator() if kind == "manual" else SimIlluminator()
-    raise PicamcalError(f"unknown illuminator {spec!r} (expected serial, serial:PORT, gpio, gpio:PIN, manual or sim)")
+        return ManualIlluminator(input_fn, colours=colours) if kind == "manual" else SimIlluminator()
+    raise PicamcalError(
+        f"unknown illuminator {spec!r} (expected serial, serial:PORT, gpio, gpio:PIN, screen, screen:DISPLAY, "
+        "screen:prompt, manual or sim)"
+    )

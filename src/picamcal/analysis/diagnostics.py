@@ -18,6 +18,8 @@ The checks follow the paper:
 * ``exposure``: clipped or dim references (section "Measuring the sensor's response").
 * ``conditioning`` and ``noise_penalty``: how far the unmixing amplifies noise (Figure
   "unmixing_matrix_and_snr"; the paper's IMX219 loses about threefold in SNR at the edges).
+* ``noise_limit`` (only for a calibration made with ``max_noise_penalty``): the bound on the centre mode's
+  noise penalty, and what it costs in colour, as CIEDE2000 on saturated primaries.
 * ``unmixing_smoothness``: high-frequency structure in the unmixing field itself. Grey dirt that dims all
   references alike cancels out of it (each bin's colour response is normalised to its white), so what
   shows here is noise, coloured dirt, or light that changed between the references.
@@ -68,6 +70,7 @@ __all__ = [
     "check_conditioning",
     "check_dust",
     "check_exposure",
+    "check_noise_limit",
     "check_noise_penalty",
     "check_unmixing_smoothness",
     "check_vignetting_centre",
@@ -75,6 +78,7 @@ __all__ = [
     "dust_residual",
     "find_dust",
     "implied_tilt",
+    "noise_limit_cost",
     "roughness",
     "vignetting_centre",
 ]
@@ -104,6 +108,11 @@ WARN_CONDITION = 20.0
 #: Worst-bin noise penalty of the "centre" mode above which the check warns. The paper's IMX219 loses about
 #: threefold at the edges; the simulator tuned to it reaches 4.4 in the extreme corner bin of a full frame.
 WARN_NOISE_PENALTY = 5.0
+#: Worst-bin CIEDE2000 on saturated primaries above which the ``noise_limit`` check warns: a bound on the noise
+#: penalty leaves that much colour error in the corners (:func:`noise_limit_cost`). 2 is about twice a
+#: just-noticeable difference. On the simulated IMX219 (320 x 240, unbounded worst penalty 3.6) a bound of 3.5
+#: costs 0.7 at the worst bin, 3.0 costs 4.0 and 2.5 costs 7.7 (0.02, 0.15 and 0.45 on average over the bins).
+WARN_NOISE_LIMIT_DELTA_E = 2.0
 #: RMS of the unmixing elements' departure from a local quadratic (:func:`roughness`) above which the check
 #: warns: 0.01 is a 1 % bin-to-bin colour error, about the smallest colour difference people notice. Clean
 #: simulated calibrations with shot and read noise give 0.006 to 0.007 square-on and 0.008 to 0.0095 at 2 deg
@@ -162,7 +171,8 @@ def diagnose(
     -------
     list of Check
         ``vignetting_centre``, ``dust``, ``exposure``, ``conditioning``, ``noise_penalty``,
-        ``unmixing_smoothness``, in that order; for a flat-field calibration (white only) the first
+        ``unmixing_smoothness``, in that order, and ``noise_limit`` last for a calibration made with a bound on
+        its noise penalty (``Calibration.noise_limit``); for a flat-field calibration (white only) the first
         three (the others, :data:`UNMIXING_CHECKS`, are about the colour unmixing it does not have).
 
     Examples
@@ -181,12 +191,12 @@ def diagnose(
     ]
     if not calibration.has_unmixing:
         return checks
-    return [
-        *checks,
+    checks += [
         check_conditioning(calibration),
         check_noise_penalty(calibration, max_penalty=max_noise_penalty),
         check_unmixing_smoothness(calibration),
     ]
+    return checks if calibration.noise_limit is None else [*checks, check_noise_limit(calibration)]
 
 
 # Vignetting centre ------------------------------------------------------------------------------------
@@ -465,6 +475,92 @@ def check_noise_penalty(calibration: Calibration, *, max_penalty: float = WARN_N
     if worst > max_penalty:
         return Check("noise_penalty", "warn", f"{line}: above {max_penalty:g}x, the edges will be very noisy", values)
     return Check("noise_penalty", "pass", line, values)
+
+
+def noise_limit_cost(calibration: Calibration) -> np.ndarray:
+    """CIEDE2000 that the centre mode's residual crosstalk costs saturated primaries, per bin and primary.
+
+    A saturated primary ``l`` (one unit of one LED, as in the red, green and blue references) should come out of
+    mode ``centre`` with its colour at the centre of the sensor, ``M_centre e_l``; with the residual crosstalk
+    ``C(b)`` of :meth:`Calibration.residual_crosstalk` it comes out as ``M_centre (I + C(b)) e_l``. The two are
+    compared as linear sRGB under D65 (white = (1, 1, 1); :func:`picamcal.analysis.metrics.delta_e2000`). Zero
+    (to rounding) for a calibration without a bound on its noise penalty.
+
+    Returns
+    -------
+    ndarray of float64, shape (nby, nbx, 3)
+        CIEDE2000 of the red, green and blue primaries in each bin.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> bounded = picamcal.calibrate(**refs, max_noise_penalty=3.0)
+    >>> round(float(noise_limit_cost(bounded).max()), 1)  # at the worst bin
+    4.0
+    """
+    from .metrics import delta_e2000
+
+    unmixing = calibration.require_unmixing("the colour cost of a noise limit")
+    centre = unmixing.centre_response
+    wanted = np.broadcast_to(centre.T, (*calibration.bins, 3, 3))  # row l: primary l's centre colour
+    got = np.swapaxes(centre @ (np.eye(3) + calibration.residual_crosstalk()), -1, -2)
+    return delta_e2000(got, wanted)
+
+
+def check_noise_limit(calibration: Calibration, *, max_delta_e: float = WARN_NOISE_LIMIT_DELTA_E) -> Check:
+    """The bound on the centre mode's noise penalty (``Calibration.noise_limit``) and its colour cost.
+
+    Reports the bound, the worst penalty without it and with it, how many bins were blended towards the flat
+    field, the largest residual crosstalk (the fraction of one primary left in another) and the CIEDE2000 it
+    costs saturated primaries (:func:`noise_limit_cost`) at the worst bin and on average. Warns when the worst
+    bin's CIEDE2000 exceeds ``max_delta_e`` (:data:`WARN_NOISE_LIMIT_DELTA_E`): the bound then visibly
+    desaturates the corners, and a higher one, or more light (less noise to begin with), may serve better.
+
+    Raises
+    ------
+    CalibrationFileError
+        The calibration has no colour unmixing or was made without a bound.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> check = check_noise_limit(picamcal.calibrate(**refs, max_noise_penalty=3.5))
+    >>> check.verdict, check.values["max_noise_penalty"], round(check.values["worst_delta_e"], 1)
+    ('pass', 3.5, 0.7)
+    """
+    limit = calibration.noise_limit
+    if limit is None:
+        raise CalibrationFileError(
+            "the calibration has no bound on its noise penalty (calibrate --max-noise-penalty)", calibration.path
+        )
+    cost = noise_limit_cost(calibration).max(axis=-1)
+    iy, ix = np.unravel_index(int(np.argmax(cost)), cost.shape)
+    y, x = calibration.bin_centres
+    values = {
+        **dict(limit),
+        "max_penalty": float(calibration.noise_penalty("centre").max()),
+        "worst_delta_e": float(cost[iy, ix]),
+        "mean_delta_e": float(cost.mean()),
+        "worst_x_px": float(x[ix]),
+        "worst_y_px": float(y[iy]),
+        "max_delta_e": max_delta_e,
+    }
+    line = (
+        f"noise penalty bounded at {limit['max_noise_penalty']:g}x (worst {values['max_penalty']:.2f}x, "
+        f"{limit.get('unbounded_max_penalty', float('nan')):.2f}x without the bound) in "
+        f"{limit.get('bins_over_bound', 0)} of {cost.size} bins; colour cost on saturated primaries: CIEDE2000 "
+        f"{values['worst_delta_e']:.2f} at worst ({x[ix]:.0f}, {y[iy]:.0f}) px, {values['mean_delta_e']:.2f} on "
+        f"average; residual crosstalk up to {100 * limit.get('max_residual_crosstalk', 0.0):.1f} %"
+    )
+    if values["worst_delta_e"] > max_delta_e:
+        summary = (
+            f"{line}: above {max_delta_e:g}, saturated colours visibly lose saturation there; raise the bound, or "
+            "lower the noise (more light, longer exposure, averaged frames) instead"
+        )
+        return Check("noise_limit", "warn", summary, values)
+    return Check("noise_limit", "pass", line, values)
 
 
 # Smoothness -------------------------------------------------------------------------------------------

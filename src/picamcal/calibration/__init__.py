@@ -10,6 +10,11 @@ kind and ``metadata``, a 0-d unicode array holding a JSON record::
      "centre_region": [51, 102, 68, 136], "ill_conditioned_bins": 0,
      "inputs": [{"role": "white", "name": "white.dng", "sha256": "...", "format": "dng"}, ...]}
 
+A calibration made with extra colour references lists them in ``inputs`` (role ``colour_<name>``; their
+responses are not stored, ``site_responses`` keeps the white, red, green and blue); one made with a bound on its
+noise penalty holds ``"noise_limit": {"max_noise_penalty": 2.5, ...}`` (:attr:`Calibration.noise_limit`). Both are
+optional keys of version 1: files without them load as before, and the arrays are the same.
+
 Two kinds (``"kind"``; a file without the key is ``"full"``, as every file before flat ones existed):
 
 ``full``
@@ -40,6 +45,7 @@ from ..errors import CalibrationFileError, CalibrationInputError
 from ..modes import Mode, parse_mode
 from ..raw.model import RawImage
 from .archive import read_archive
+from .fitting import penalty_field, residual_crosstalk
 from .schema import (
     ARRAYS,
     DERIVED_KEYS,
@@ -133,8 +139,9 @@ class Calibration:
         Standard deviation (bins) of the Gaussian applied to the binned responses.
     provenance : mapping
         The rest of the record, read-only: ``inputs`` (one entry per reference role: name, checksum, format,
-        exposure), ``created``, ``software_version``, ``black_frame`` and, in situ, ``in_situ``
-        (docs/calibration-file.md).
+        exposure; extra colour references as ``colour_<name>``, with every colour reference's ``fit_residual``
+        when there are extras), ``created``, ``software_version``, ``black_frame``, with a bound on the noise
+        penalty ``noise_limit`` (:attr:`noise_limit`) and, in situ, ``in_situ`` (docs/calibration-file.md).
     site_responses : ndarray of float32, shape (4, nby, nbx, 4), or (1, nby, nbx, 4) for ``flat``
         Black-subtracted DN of the white, red, green and blue references per Bayer site.
     site_white : ndarray of float32, shape (nby, nbx, 4)
@@ -478,14 +485,59 @@ picamcal calibrate --white WHITE --unmixing-from JIG.npz
         parsed = self.check_mode(mode)
         if parsed is Mode.UNCORRECTED:
             return np.ones(self.white.shape, dtype=np.float32)
-        sigma = np.asarray(channel_noise, dtype=float)
         ys, xs = self.centre_slices
         w_centre = self.white[ys, xs].reshape(-1, 3).mean(axis=0)
         matrices = self.matrices(parsed)
         if matrices is None:
             matrices = np.broadcast_to(np.eye(3), (*self.white.shape[:2], 3, 3))
-        coefficients = matrices * (sigma / self.white)[..., None, :]
-        return (w_centre / sigma * np.sqrt((coefficients**2).sum(axis=-1))).astype(np.float32)
+        sigma = np.asarray(channel_noise, dtype=float)
+        return penalty_field(matrices, self.white, w_centre, sigma).astype(np.float32)
+
+    @property
+    def noise_limit(self) -> Mapping[str, Any] | None:
+        """The bound on the centre mode's noise penalty and its colour cost, or None for an unbounded calibration.
+
+        Made by :func:`picamcal.calibrate` with ``max_noise_penalty``: ``max_noise_penalty`` (the bound),
+        ``unbounded_max_penalty`` (the worst penalty without it), ``bins_over_bound`` (bins whose penalty was over
+        it), ``limited_bins`` (bins blended towards the flat field, a few more than those, so that the field stays
+        smooth), ``max_blend`` (the largest blend weight, 0 to 1), ``max_residual_crosstalk`` and
+        ``mean_residual_crosstalk`` (over the bins, of the largest leak :meth:`residual_crosstalk` leaves in each)
+        and ``worst_bin`` (its row and column).
+
+        Examples
+        --------
+        >>> from picamcal.simulate import make_camera, simulate_references
+        >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+        >>> picamcal.calibrate(**refs).noise_limit is None
+        True
+        >>> limit = picamcal.calibrate(**refs, max_noise_penalty=2.5).noise_limit
+        >>> limit["max_noise_penalty"], limit["limited_bins"] > 0, limit["max_residual_crosstalk"] > 0.01
+        (2.5, True, True)
+        """
+        return self.provenance.get("noise_limit")
+
+    def residual_crosstalk(self) -> np.ndarray:
+        """The crosstalk the centre mode leaves, per bin, shape (nby, nbx, 3, 3): ``Cx U(b) M(b) - I``.
+
+        Zero (to float32 rounding) for the full unmixing; a noise-limited one (:attr:`noise_limit`) blended with
+        weight ``lambda(b)`` towards the flat field leaves ``lambda(b) (Cx M(b) - I)``. Element ``(p, l)`` is the
+        fraction of primary ``l`` that shows as primary ``p``, relative to the centre's colours: off the diagonal
+        colour that leaks into another primary, on it saturation lost (negative) or gained
+        (:func:`picamcal.calibration.fitting.residual_crosstalk`).
+
+        Examples
+        --------
+        >>> from picamcal.simulate import make_camera, simulate_references
+        >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+        >>> float(np.abs(picamcal.calibrate(**refs).residual_crosstalk()).max()) < 1e-5
+        True
+        """
+        unmixing = self.require_unmixing("the residual crosstalk")
+        return residual_crosstalk(
+            unmixing.unmixing.astype(np.float64),
+            unmixing.crosstalk.astype(np.float64),
+            unmixing.colour_response_inverse,
+        )
 
     def check_compatible(self, raw: RawImage) -> None:
         """Raise CalibrationFileError if ``raw`` is not from the sensor, size and pattern this calibration is for."""

@@ -122,7 +122,23 @@ def check_record(meta: Any, path: Path | None, error: type[PicamcalError]) -> tu
         _check_input(fields, entry, f"record 'inputs'[{i}]")
     if "in_situ" in meta:
         fields.mapping(meta["in_situ"], "record 'in_situ'")
+    if "noise_limit" in meta:
+        _check_noise_limit(fields, meta["noise_limit"])
     return kind, nby, nbx
+
+
+def _check_noise_limit(fields: Fields, limit: Any) -> None:
+    """The ``noise_limit`` record of a calibration made with a bound on its noise penalty."""
+    fields.mapping(limit, "record 'noise_limit'", ("max_noise_penalty",))
+    fields.number(limit["max_noise_penalty"], "record 'noise_limit'.max_noise_penalty", minimum=1)
+    for key in ("unbounded_max_penalty", "max_blend", "max_residual_crosstalk", "mean_residual_crosstalk"):
+        if key in limit:
+            fields.number(limit[key], f"record 'noise_limit'.{key}", minimum=0)
+    for key in ("bins_over_bound", "limited_bins"):
+        if key in limit:
+            fields.number(limit[key], f"record 'noise_limit'.{key}", integer=True, minimum=0)
+    if "worst_bin" in limit:
+        fields.numbers(limit["worst_bin"], "record 'noise_limit'.worst_bin", 2, integer=True, minimum=0)
 
 
 def _check_input(fields: Fields, entry: Any, where: str) -> None:
@@ -132,7 +148,8 @@ def _check_input(fields: Fields, entry: Any, where: str) -> None:
     for key in ("name", "sha256", "format"):
         if key in entry and entry[key] is not None:
             fields.text(entry[key], f"{where}.{key}")
-    for key in ("clipped_fraction", "median_fraction", "p99_fraction", "temporal_noise_dn", "averaged_noise_dn"):
+    numbers = ("clipped_fraction", "median_fraction", "p99_fraction", "temporal_noise_dn", "averaged_noise_dn")
+    for key in (*numbers, "fit_residual"):
         if key in entry and entry[key] is not None:
             fields.number(entry[key], f"{where}.{key}")
     count = fields.number(entry.get("frame_count", 1), f"{where}.frame_count", integer=True, minimum=1)

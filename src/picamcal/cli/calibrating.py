@@ -38,7 +38,8 @@ def calibrate_cmd(
         Path | None,
         typer.Argument(
             help="Folder holding the white (white_1, white_2, ... to average), optional red, green and blue (all "
-            "three or none), and optional black references."
+            "three or none), optional extra colours (colour_NAME, for a least-squares unmixing) and optional black "
+            "references."
         ),
     ] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Calibration file to write (.npz).")] = Path(
@@ -51,6 +52,22 @@ def calibrate_cmd(
     green: Annotated[list[Path] | None, typer.Option(help="Green reference raw file(s).")] = None,
     blue: Annotated[list[Path] | None, typer.Option(help="Blue reference raw file(s).")] = None,
     black: Annotated[list[Path] | None, typer.Option(help="Dark frame(s) (optional).")] = None,
+    colour: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--colour",
+            help="Extra colour reference (an LED mixture, a screen colour) for a least-squares unmixing: FILE named "
+            "colour_NAME..., or NAME=FILE; repeatable, one per colour.",
+        ),
+    ] = None,
+    max_noise_penalty: Annotated[
+        float | None,
+        typer.Option(
+            help="Bound the centre mode's noise penalty: where a bin's would exceed it, its unmixing is blended "
+            "towards the flat field (costing colour, reported). At least 1, and at least the flat field's own.",
+            callback=in_range(1, why="the factor by which the correction may multiply noise; 1 = not at all"),
+        ),
+    ] = None,
     unmixing_from: Annotated[
         Path | None,
         typer.Option(help="In situ: take the unmixing from this jig calibration; only --white (and --black) needed."),
@@ -82,16 +99,23 @@ def calibrate_cmd(
     from ..analysis.diagnostics import diagnose
     from ..calibrate import calibrate, calibrate_in_situ
     from ..calibration import is_calibration_file
-    from ..references import COLOURS, find_references
+    from ..references import COLOURS, colour_name, find_references
 
     named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
     refs: dict[str, Any] = find_references(folder, in_situ=unmixing_from is not None) if folder is not None else {}
     refs.update({role: paths[0] if len(paths) == 1 else paths for role, paths in named.items() if paths})
+    refs.update(_colour_options(colour or []))
     colours = [role for role in COLOURS if role in refs]
     if "white" not in refs:
         raise typer.BadParameter("give a folder of references or --white")
     if unmixing_from is not None and colours:
         raise typer.BadParameter("--unmixing-from takes the colours from the jig calibration: drop --" + colours[0])
+    if unmixing_from is not None and (colour or max_noise_penalty is not None):
+        raise typer.BadParameter(
+            "--unmixing-from takes the unmixing from the jig calibration: give --colour and --max-noise-penalty "
+            "when making that",
+            param_hint="--colour" if colour else "--max-noise-penalty",
+        )
     paths = [p for ref in refs.values() for p in (ref if isinstance(ref, list) else [ref])]
     check_output(out, overwrite, is_calibration_file, "a picamcal calibration", [*paths, unmixing_from, folder])
     read = reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
@@ -105,7 +129,13 @@ def calibrate_cmd(
             black_frames = frames("black") if "black" in refs else None
             cal = calibrate_in_situ(frames("white"), unmixing_from, black_frames, smoothing=smoothing)
         else:
-            cal = calibrate(**{role: frames(role) for role in refs}, bin_size=bin_size, smoothing=smoothing)
+            cal = calibrate(
+                **{role: frames(role) for role in refs if not colour_name(role)},
+                colours={name: frames(role) for role in refs if (name := colour_name(role))} or None,
+                max_noise_penalty=max_noise_penalty,
+                bin_size=bin_size,
+                smoothing=smoothing,
+            )
         cal.save(out, overwrite=overwrite)
         checks = diagnose(cal)
     what = (
@@ -126,6 +156,13 @@ def calibrate_cmd(
                 f"{info['temporal_noise_dn']:.2f} DN per pixel in one frame, {info['averaged_noise_dn']:.2f} DN in "
                 "their average"
             )
+    fitted = [info for info in cal.inputs if "fit_residual" in info]
+    if fitted:
+        lines.append(
+            f"least-squares unmixing from {len(fitted)} colour references; RMS fit error per reference: "
+            + ", ".join(f"{info['role']} {100 * info['fit_residual']:.2f} %" for info in fitted)
+        )
+    lines += [f"{c.name}: {c.summary}" for c in checks if c.name == "noise_limit" and c.verdict == "pass"]
     lines += [f"needs a look: {check.name}: {check.summary}" for check in checks if check.verdict == "warn"]
     for line in lines:
         console.print(line, markup=False, soft_wrap=True)
@@ -287,3 +324,28 @@ def _batch_read_options(*args: Any) -> dict[str, Any]:
     options = read_options(*args)
     options["raw_size"] = options.pop("size")
     return options
+
+
+def _colour_options(values: list[str]) -> dict[str, Path]:
+    """calibrate's ``--colour`` values (``NAME=FILE``, or a FILE named ``colour_NAME...``) as roles -> files."""
+    from ..references import COLOUR_NAME, colour_name, colour_role, role_of
+
+    roles: dict[str, Path] = {}
+    for value in values:
+        name, sep, file = value.partition("=")
+        if not (sep and COLOUR_NAME.fullmatch(name)):  # a path that holds "=" is a path
+            name, file = colour_name(role_of(Path(value).name) or "") or "", value
+        if not name or not file:
+            raise typer.BadParameter(
+                f"{value!r}: name the colour, NAME=FILE (NAME of letters, digits and '-'), or name the file "
+                "colour_NAME.dng",
+                param_hint="--colour",
+            )
+        role = colour_role(name)
+        if role in roles:
+            raise typer.BadParameter(
+                f"two references are named {name.lower()} ({roles[role]}, {file}): give each colour once",
+                param_hint="--colour",
+            )
+        roles[role] = Path(file)
+    return roles

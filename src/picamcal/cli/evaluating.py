@@ -17,25 +17,60 @@ from ._common import app, check_output, console, in_range, parse_size, progress_
 
 @app.command("target")
 def target_cmd(
-    out: Annotated[Path, typer.Option("--out", "-o", help="TARGET.png or TARGET.pdf; the layout goes to TARGET.json.")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            "-o",
+            help="TARGET.png or TARGET.pdf; the layout goes to TARGET.json. With --screens: a FOLDER for the screens "
+            "alone, or TARGET.png to write the screens beside it.",
+        ),
+    ],
     size: Annotated[
         str, typer.Option(help="WIDTHxHEIGHT in pixels (your monitor's, to show it full-screen).")
     ] = "1920x1080",
+    screens: Annotated[
+        bool,
+        typer.Option(
+            help="Write the full-screen references screen_white.png, screen_red.png, screen_green.png, "
+            "screen_blue.png, screen_black.png (and screen_colour_NAME.png) into --out, or beside TARGET.png."
+        ),
+    ] = False,
+    colour: Annotated[
+        list[str] | None,
+        typer.Option(help="With --screens: an extra full-screen colour NAME=R,G,B (0-255) (repeatable)."),
+    ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
 ) -> None:
     """Write the colour-wheel test target (PNG to show full-screen, or PDF to print) and its layout.
 
-    The same target `picamcal simulate` photographs, laid out on WIDTHxHEIGHT pixels.
+    The same target `picamcal simulate` photographs, laid out on WIDTHxHEIGHT pixels. With --screens, the
+    full-screen references too, for a calibration in the monitor's own colours.
     """
-    from ..target import is_target_file, save_target
+    from ..references import parse_colours
+    from ..target import is_target_file, save_screens, save_target
 
     width, height = parse_size(size) or (1920, 1080)
-    if out.suffix.lower() not in (".png", ".pdf"):
+    if colour and not screens:
+        raise typer.BadParameter("it names a full-screen colour: give --screens too", param_hint="--colour")
+    try:
+        colours = parse_colours(colour or ())
+    except PicamcalError as exc:
+        raise typer.BadParameter(exc.problem, param_hint="--colour") from None
+    target = not screens or out.suffix.lower() in (".png", ".pdf")
+    if target and out.suffix.lower() not in (".png", ".pdf"):
         raise typer.BadParameter("the target is written as .png or .pdf", param_hint="--out")
-    for path in (out, out.with_suffix(".json")):
-        check_output(path, overwrite, is_target_file, "a target picamcal wrote")
-    image, layout = save_target(out, width, height, overwrite=overwrite)
-    console.print(f"wrote {image} and its layout {layout}")
+    if target:
+        for path in (out, out.with_suffix(".json")):
+            check_output(path, overwrite, is_target_file, "a target picamcal wrote")
+    if screens:  # first: save_screens refuses every existing screen before it writes any
+        folder = out.parent if target else out
+        paths = save_screens(folder, width, height, colours, overwrite=overwrite)
+        console.print(f"wrote {len(paths)} full-screen references to {folder}: {', '.join(p.name for p in paths)}")
+        console.print("show each full-screen, unscaled, with the monitor's brightness fixed and auto-dimming off")
+    if target:
+        image, layout = save_target(out, width, height, overwrite=overwrite)
+        console.print(f"wrote {image} and its layout {layout}")
 
 
 @app.command("analyse")

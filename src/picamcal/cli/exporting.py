@@ -170,7 +170,7 @@ def apply_tuning_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
-    from ..export.isp import apply_tuning, full_sensor_size, mode_for_image
+    from ..export.isp import applied_colour_gains, apply_tuning, full_sensor_size, mode_for_image
     from ..export.tuning import load_tuning
     from ..output import is_picamcal_output, write_rgb_tiff
 
@@ -196,12 +196,15 @@ def apply_tuning_cmd(
     full = given_size or full_sensor_size(raw)
     crop_box = (int(crop[0]), int(crop[1]), int(crop[2]), int(crop[3])) if crop else None
     mode = mode_for_image(full, (raw.width, raw.height), crop_box)
+    given_gains = (gains[0], gains[1]) if gains else None
     try:
-        rgb = apply_tuning(raw, tuning, colour_gains=(gains[0], gains[1]) if gains else None, ccm=ccm, mode=mode, ct=ct)
+        rgb = apply_tuning(raw, tuning, colour_gains=given_gains, ccm=ccm, mode=mode, ct=ct)
     except PicamcalError as exc:
         if exc.path is None:  # a problem with the tuning's content: the tuning dict does not know its file
             raise type(exc)(exc.problem, tuning_file) from None
         raise
-    info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm}
+    # The gains applied, so that `correct --processed --tuning` divides out these very ones.
+    applied = list(applied_colour_gains(raw, given_gains))
+    info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm, "colour_gains": applied}
     write_rgb_tiff(out, rgb, info, overwrite=overwrite)
     console.print(f"wrote {out}")

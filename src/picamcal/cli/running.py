@@ -27,11 +27,59 @@ def simulate_cmd(
     dust: Annotated[int, typer.Option(help="Number of dust specks on the white reference.")] = 0,
     fmt: Annotated[str, typer.Option("--format", help="Raw format: dng, brcm (legacy JPEG+raw), npy, npz.")] = "dng",
     overwrite: Annotated[bool, typer.Option(help="Replace existing files.")] = False,
+    spectral: Annotated[
+        bool, typer.Option(help="The spectral model (docs/simulator.md): spectra, lenses, monitor and print targets.")
+    ] = False,
+    source: Annotated[
+        str | None, typer.Option(help="With --spectral: the references' light, jig (LED) or monitor (full-screen).")
+    ] = None,
+    target: Annotated[
+        str | None, typer.Option(help="With --spectral: the target shown, monitor, print or led.")
+    ] = None,
+    lens: Annotated[
+        str | None, typer.Option(help="With --spectral: the optics for the target, none, long or short.")
+    ] = None,
+    colour: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="With --spectral: an extra reference NAME=R,G,B, 0-255 as for target and acquire (repeatable; "
+            "default cyan, magenta, yellow)."
+        ),
+    ] = None,
 ) -> None:
     """Simulate a calibration run: five references, `picamcal target`'s target filling the frame, the ground truth."""
-    from ..simulate import RAW_WRITERS, simulate_run
+    from ..simulate import LENSES, RAW_WRITERS, SOURCES, TARGETS, simulate_run
 
     fmt = choice(fmt, list(RAW_WRITERS), "--format")
+    if spectral:
+        from ..references import parse_colours
+        from ..simulate.spectral_run import amounts_of, simulate_spectral_run
+
+        if dust:
+            raise typer.BadParameter("--dust is not simulated with --spectral")
+
+        with console.status(f"simulating {sensor} (spectral)"):
+            paths = simulate_spectral_run(
+                out,
+                sensor,
+                source=choice(source or "jig", list(SOURCES), "--source"),
+                target=choice(target or "monitor", list(TARGETS), "--target"),
+                lens=choice(lens or "none", list(LENSES), "--lens"),
+                colours=None if colour is None else amounts_of(parse_colours(colour)),
+                pattern=pattern,
+                size=parse_size(size),
+                tilt=tilt,
+                seed=seed,
+                noise=noise,
+                fmt=fmt,
+                overwrite=overwrite,
+            )
+        console.print(f"wrote {len(paths)} files to {out}")
+        return
+    options = {"--source": source, "--target": target, "--lens": lens, "--colour": colour}
+    given = [name for name, value in options.items() if value is not None]
+    if given:
+        raise typer.BadParameter(f"{given[0]} needs --spectral")
     with console.status(f"simulating {sensor}"):
         paths = simulate_run(
             out,
@@ -53,8 +101,19 @@ def acquire_cmd(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder of the run: created, or resumed if it holds one.")],
     camera: Annotated[str, typer.Option(help="picamera2 (picamera2:N for camera N) or sim.")] = "picamera2",
     illuminator: Annotated[
-        str, typer.Option(help="serial (serial:PORT), gpio (gpio:PIN, default D18), manual or sim.")
+        str,
+        typer.Option(
+            help="serial (serial:PORT), gpio (gpio:PIN, default D18), screen (full-screen on this display, or "
+            "prompts; screen:DISPLAY, screen:prompt), manual or sim."
+        ),
     ] = "serial",
+    colour: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="An extra colour reference NAME=R,G,B (0-255), captured as colour_NAME after the five "
+            "(repeatable)."
+        ),
+    ] = None,
     extra: Annotated[
         list[str] | None,
         typer.Option(help="An extra image at the same settings, e.g. target; asked for before each (repeatable)."),
@@ -80,18 +139,34 @@ def acquire_cmd(
     size: Annotated[str | None, typer.Option(help="Simulate WIDTHxHEIGHT instead of the full sensor.")] = None,
     seed: Annotated[int, typer.Option(help="Random seed of the simulated camera.", callback=in_range(0))] = 0,
 ) -> None:
-    """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black and extras."""
+    """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black, colours, extras."""
     from ..acquire.acquisition import acquire, open_rig
+    from ..errors import PicamcalError
+    from ..references import parse_colours
+
+    try:
+        colours = parse_colours(colour or ())
+    except PicamcalError as exc:
+        raise typer.BadParameter(exc.problem, param_hint="--colour") from None
 
     def show(message: str, done: int, total: int) -> None:
         # One line per step rather than a live bar, so it never draws over the prompts.
         console.print(f"[{done}/{total}] {message}")
 
-    with open_rig(camera, illuminator, sensor=sensor, size=parse_size(size), seed=seed, prompt=input) as rig:
+    with open_rig(
+        camera, illuminator, sensor=sensor, size=parse_size(size), seed=seed, colours=colours, prompt=input
+    ) as rig:
+        light = rig.illuminator.describe()
+        if light.get("shows") == "window":
+            console.print(f"showing the colours full-screen on the display {light['display']}")
+        elif light.get("shows") == "prompt":
+            why = f" ({light['why']})" if "why" in light else ""
+            console.print(f"you show the colours: picamcal target --screens writes the images{why}")
         manifest = acquire(
             rig.camera,
             rig.illuminator,
             out,
+            colours=colours,
             extras=extra or (),
             target_fraction=target_fraction,
             settle_s=settle,

@@ -27,6 +27,7 @@ from typing import Any, TypedDict
 import numpy as np
 
 from .._json import Fields
+from ..bayer import sites_to_channels
 from ..calibration import Calibration
 from ..errors import PicamcalError
 from ..raw.model import RawImage, site_channels
@@ -552,6 +553,24 @@ def tuning_ccm(tuning: dict[str, Any], ct: float) -> np.ndarray | None:
     return None
 
 
+def applied_colour_gains(raw: RawImage, colour_gains: tuple[float, float] | None = None) -> tuple[float, float]:
+    """The white balance gains (red, blue) :func:`apply_tuning` applies: ``colour_gains``, else the raw's
+    ``metadata["colour_gains"]`` (the gains the camera froze), else 1.
+
+    What an ``apply_tuning`` output should record (as ``colour_gains``) so that :func:`processed_inputs` divides
+    out the very gains it applied.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_target
+    >>> raw, _ = simulate_target(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> applied_colour_gains(raw), applied_colour_gains(raw, (1.5, 1.2))
+    ((2.0023, 1.0316), (1.5, 1.2))
+    """
+    red, blue = (raw.metadata.get("colour_gains") or (1.0, 1.0)) if colour_gains is None else colour_gains
+    return float(red), float(blue)
+
+
 def apply_tuning(
     raw: RawImage,
     tuning: dict[str, Any],
@@ -604,10 +623,8 @@ def apply_tuning(
     black = tuning_black_level(tuning, raw.bit_depth)
     levels = np.asarray(raw.black_level if black is None else (black,) * 4, dtype=np.float32)
     gains = lens_shading_gains(tuning, raw.width, raw.height, mode=mode, ct=ct)
-    if colour_gains is None:
-        red, blue = raw.metadata.get("colour_gains") or (1.0, 1.0)
-        colour_gains = (float(red), float(blue))
-    balance = np.array([colour_gains[0], 1.0, colour_gains[1]], dtype=np.float32)
+    red, blue = applied_colour_gains(raw, colour_gains)
+    balance = np.array([red, 1.0, blue], dtype=np.float32)
     mosaic = raw.bayer.astype(np.float32)
     for site, channel in enumerate(site_channels(raw.pattern)):
         sy, sx = divmod(site, 2)
@@ -628,7 +645,32 @@ class ProcessedInputs(TypedDict):
 
     ccm: np.ndarray | None
     isp_gains: np.ndarray
+    colour_gains: tuple[float, float] | None
     crop: tuple[int, int, int, int] | None
+
+
+def calibration_colour_gains(calibration: Calibration) -> tuple[float, float]:
+    """The white balance of a camera frozen on the calibration's white reference: (green / red, green / blue).
+
+    The white's bins over the central half of the frame (on whole 2 x 2 blocks), before any lens shading table:
+    the region where ``picamcal acquire`` measures the ``ColourGains`` it freezes for the references (and where
+    the simulator measures its ``colour_gains``), and the paper's procedure freezes the camera's.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), noise=False)
+    >>> gains = calibration_colour_gains(picamcal.calibrate(**refs))
+    >>> [round(g, 3) for g in gains], refs["white"].metadata["colour_gains"]  # the camera's own
+    ([2.007, 1.031], [2.0023, 1.0316])
+    """
+    height, width = calibration.height, calibration.width
+    centre_y, centre_x = calibration.bin_centres
+    rows = (centre_y >= height // 8 * 2) & (centre_y < height - height // 8 * 2)
+    cols = (centre_x >= width // 8 * 2) & (centre_x < width - width // 8 * 2)
+    sites = calibration.site_white[rows][:, cols].reshape(-1, 4).mean(axis=0, dtype=np.float64)
+    red, green, blue = sites_to_channels(sites, calibration.pattern)
+    return float(green / red), float(green / blue)
 
 
 def processed_inputs(
@@ -638,15 +680,24 @@ def processed_inputs(
     *,
     ct: float | None = None,
     crop: tuple[int, int, int, int] | None = None,
+    colour_gains: tuple[float, float] | None = None,
 ) -> ProcessedInputs:
     """What the camera's ISP did to a processed image, from the tuning file it ran with, for ``correct_processed``.
 
     The ISP applied the tuning file's static lens shading (``rpi.alsc``, emulated by
-    :func:`isp_gains_for_image` on the calibration's sensor, resampled to the image) and then its colour matrix
-    (``rpi.ccm``), both at the colour temperature ``ct``. :func:`picamcal.correct.correct_processed` divides out
-    the residual between those gains and the calibration's flat field, and undoes and re-applies the matrix
-    around the unmixing: ``correct_processed(image, cal, mode, **processed_inputs(tuning, cal, image))``, what
+    :func:`isp_gains_for_image` on the calibration's sensor, resampled to the image), the camera's colour gains
+    and then its colour matrix (``rpi.ccm``), the tables at the colour temperature ``ct``.
+    :func:`picamcal.correct.correct_processed` divides out the lens shading and colour gains with the
+    calibration's flat field (so the white is neutral where the unmixing acts, as on the raw path), and undoes
+    and re-applies the matrix around the unmixing:
+    ``correct_processed(image, cal, mode, **processed_inputs(tuning, cal, image))``, what
     ``picamcal correct --processed --tuning FILE`` does for each image.
+
+    The colour gains matter: the table's gains at the centre are not neutral (libcamera scales the colour
+    tables to 1 at their smallest cell, not at the centre; (1.67, 1.03, 1.05) for an IMX219 table exported from
+    the simulator), so the white is neutral in the image only if the camera's white balance was frozen on the
+    white with this tuning loaded (its auto white balance measures after the lens shading). Gains frozen
+    otherwise (before the table was loaded, as ``picamcal acquire`` records them) must be given.
 
     Parameters
     ----------
@@ -660,11 +711,20 @@ def processed_inputs(
         Colour temperature in kelvin; default the tuning file's (:func:`default_ct`).
     crop : (x, y, width, height), optional
         The sensor area the image shows, in sensor pixels; default the whole sensor.
+    colour_gains : (red, blue), optional
+        The white balance gains the camera applied (Picamera2's ``ColourGains`` metadata). Default: the image's
+        ``metadata["colour_gains"]`` if it has them; else, for ``picamcal apply-tuning``'s output (which applied
+        the raw's frozen gains, those a calibration run freezes on its white), :func:`calibration_colour_gains`;
+        else None: the camera's auto white balance ran on the white with this tuning loaded and was then frozen,
+        so the image's white is neutral at the centre (:func:`picamcal.correct.correct_processed` keeps its
+        balance there).
 
     Returns
     -------
     ProcessedInputs
-        ``ccm`` (3 x 3, or None if the file has no ``rpi.ccm``), ``isp_gains`` (H, W, 3) and ``crop``.
+        ``ccm`` (3 x 3; None if the file has no ``rpi.ccm``, or if the image is ``picamcal apply-tuning``'s
+        output made without ``--ccm``, as its ``metadata["picamcal"]["ccm"]`` records), ``isp_gains``
+        (H, W, 3), ``colour_gains`` and ``crop``.
 
     Raises
     ------
@@ -690,4 +750,17 @@ def processed_inputs(
     ct = default_ct(tuning) if ct is None else float(ct)
     sensor = (calibration.width, calibration.height)
     gains = isp_gains_for_image(tuning, sensor, (int(width), int(height)), crop=crop, ct=ct)
-    return {"ccm": tuning_ccm(tuning, ct), "isp_gains": gains, "crop": crop}
+    metadata = image.metadata if isinstance(image, ProcessedImage) else {}
+    record = metadata.get("picamcal", {})  # apply-tuning's output says what the emulated ISP did
+    if colour_gains is None and metadata.get("colour_gains"):
+        colour_gains = metadata["colour_gains"]
+    if colour_gains is None and "tuning" in record:
+        colour_gains = calibration_colour_gains(calibration)
+    # The camera's ISP always applies its CCM; apply-tuning only with --ccm, which its record keeps.
+    applied_ccm = record.get("ccm", True) is not False
+    return {
+        "ccm": tuning_ccm(tuning, ct) if applied_ccm else None,
+        "isp_gains": gains,
+        "colour_gains": None if colour_gains is None else (float(colour_gains[0]), float(colour_gains[1])),
+        "crop": crop,
+    }

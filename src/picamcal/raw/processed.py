@@ -14,7 +14,8 @@ curve, which the file does not describe: the caller says how it was encoded (``e
     the ``rpi.contrast`` ``gamma_curve`` of a libcamera tuning file, as the Raspberry Pi ISP applied it.
 
 16-bit PNG is read with pypng (Pillow reduces 16-bit colour PNG to 8 bits), TIFF with tifffile,
-everything else with Pillow.
+everything else with Pillow. A float TIFF picamcal wrote (``apply-tuning``, ``correct``) is linear RGB whatever the
+encoding given, and its record (``metadata["picamcal"]``) says what made it.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from .._json import Fields, read_json
+from .._json import Fields, parse_json, read_json
 from ..errors import PicamcalError, RawFormatError, closest
 from ..limits import check_size
 from .npy import file_head
@@ -162,7 +163,7 @@ def _png_bit_depth(path: Path) -> int:
     return head[24] if len(head) >= 26 and head[12:16] == b"IHDR" else 8
 
 
-def _read_tiff(path: Path) -> np.ndarray:
+def _read_tiff(path: Path, meta: dict[str, Any]) -> np.ndarray:
     import tifffile
 
     with tifffile.TiffFile(path) as tif:
@@ -171,7 +172,30 @@ def _read_tiff(path: Path) -> np.ndarray:
         if len(shape) != 3 or shape[-1] not in (3, 4):
             raise RawFormatError(f"expected an RGB image, got an array of shape {shape}", path)
         check_size(path, int(shape[1]), int(shape[0]))
+        meta.update(_picamcal_description(tif.pages.first.tags))
         return series.asarray()
+
+
+def _picamcal_description(tags: Any) -> dict[str, Any]:
+    """picamcal's own record in a TIFF it wrote (Software ``picamcal ...``, a JSON ImageDescription), as metadata.
+
+    ``picamcal`` holds the record (``apply-tuning`` writes whether it applied the CCM, ``"ccm"``); its
+    ``colour_gains``, if any, become the image's. A damaged or foreign description is simply not picamcal's.
+    """
+    software, description = tags.get(305), tags.get(270)
+    if software is None or not str(software.value).startswith("picamcal") or description is None:
+        return {}
+    try:
+        record = parse_json(str(description.value), RawFormatError, "picamcal's description").get("picamcal")
+    except (PicamcalError, AttributeError):
+        return {}
+    if not isinstance(record, dict):
+        return {}
+    meta: dict[str, Any] = {"picamcal": record}
+    gains = record.get("colour_gains")
+    if isinstance(gains, list) and len(gains) == 2 and all(isinstance(g, (int, float)) and g > 0 for g in gains):
+        meta["colour_gains"] = [float(g) for g in gains]
+    return meta
 
 
 def _read_with_pillow(path: Path, meta: dict[str, Any]) -> np.ndarray:
@@ -272,7 +296,10 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     path : path-like
         JPEG, PNG (8 or 16 bit) or TIFF (8 or 16 bit, or float on a 0..1 scale; RGB).
     encoding : str
-        How the values were encoded: ``srgb`` (default), ``linear``, ``gamma:G``, ``tuning:FILE``.
+        How the values were encoded: ``srgb`` (default), ``linear``, ``gamma:G``, ``tuning:FILE``. A float32
+        TIFF that picamcal wrote (``apply-tuning``, ``correct``) says it is linear RGB, and is read as such
+        whatever the encoding; its record is kept as ``metadata["picamcal"]`` (and its ``colour_gains``, if it
+        has them, as the image's: see :func:`picamcal.export.isp.processed_inputs`).
 
     Examples
     --------
@@ -289,7 +316,7 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     try:
         with _quiet_tifffile():
             if head[:4] in (b"II*\x00", b"MM\x00*"):
-                data = _read_tiff(path)
+                data = _read_tiff(path, meta)
                 meta["format"] = "tiff"
             elif head.startswith(b"\x89PNG") and _png_bit_depth(path) == 16:
                 data = _read_png16(path)
@@ -315,6 +342,10 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     if bits == 32 and not np.all(np.isfinite(data)):
         count = int(np.count_nonzero(~np.isfinite(data)))
         raise RawFormatError(f"holds {count} NaN or infinite samples: not an image picamcal can correct", path)
+    if bits == 32 and "picamcal" in meta:
+        # picamcal writes float samples only as linear RGB: undoing a tone curve that was never applied would bend
+        # every value (corner CIEDE2000 of 5 to 8 for apply-tuning's output read with the tuning's curve).
+        encoding = "linear"
     values = data.astype(np.float32) if bits == 32 else data.astype(np.float32) / float((1 << bits) - 1)
     meta["encoding"] = encoding
     return ProcessedImage(linearise(values, encoding), encoding, bits, meta)

@@ -31,6 +31,7 @@ h1 { font-size: 1.6em; } h2 { border-bottom: 1px solid #ccc; padding-bottom: .2e
 table { border-collapse: collapse; margin: 1em 0; } td, th { border: 1px solid #ccc; padding: .3em .6em; }
 th { background: #f3f3f3; text-align: left; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
 .pass { color: #1a7f37; font-weight: bold; } .warn { color: #b35900; font-weight: bold; }
+.fail { color: #c62828; font-weight: bold; }
 figure { margin: 1.5em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { color: #555; font-size: .92em; } code { background: #f5f5f5; padding: 0 .2em; }
 .note { background: #f6f8fa; border-left: 4px solid #888; padding: .5em .8em; }
@@ -143,6 +144,7 @@ def _test_image_section(
     cal: Calibration, raw: RawImage, folder: Path, index: int, layout: dict | None
 ) -> tuple[str, dict[str, Any]]:
     from ..analysis.metrics import save_preview
+    from ..analysis.verdicts import image_verdict
     from ..analysis.wheels import analyse, find_wheels, polar_plot, wheel_crops
     from ..correct import correct
 
@@ -150,8 +152,10 @@ def _test_image_section(
     images = {mode.value: correct(raw, cal, mode) for mode in cal.modes}
     found = find_wheels(images[Mode.UNCORRECTED.value], layout=layout)
     result = analyse(images, found)
+    verdict = image_verdict(cal, result)
     parts = [
         f"<h3>{_esc(Path(raw.source).name)}</h3>",
+        _verdict_html(verdict),
         "<table><tr><th>mode</th><th>corner CIEDE2000 max</th>"
         "<th>CIEDE2000 mean</th><th>saturation vs centre</th></tr>",
     ]
@@ -173,7 +177,31 @@ def _test_image_section(
             f"<figcaption>{_esc(mode)}: the image (sRGB preview), its colour wheels, and the hue (angle) and "
             "saturation (radius) of each segment: centre wheel solid, the others dashed.</figcaption></figure>"
         )
-    return "\n".join(parts), result
+    return "\n".join(parts), {"image": raw.source, "verdict": verdict, "analysis": result}
+
+
+def _verdict_html(verdict: Mapping[str, Any]) -> str:
+    """The verdict on a test image, its thresholds, and what the workflows that could have made the calibration
+    reach on the spectral simulator."""
+    expected = verdict["expected"]
+    conditions = expected["conditions"]
+    rows = "".join(
+        f"<tr><td>{_esc(w['name'])}</td><td>{_esc(w['calibration'])}</td><td>{_esc(w['target'])}</td>"
+        f"<td>{_esc(w['lens'])}</td><td class='num'>{w['mean_delta_e']:.2f}</td>"
+        f"<td class='num'>{w['max_delta_e']:.2f}</td><td class='num'>{w['floor_mean_delta_e']:.2f}</td></tr>"
+        for w in expected["workflows"]
+    )
+    advice = f"<p class='note'>{_esc(verdict['advice'])}.</p>" if verdict["advice"] else ""
+    return (
+        f"<p>Verdict: <span class='{_esc(verdict['verdict'])}'>{_esc(verdict['verdict'])}</span>: corner CIEDE2000 "
+        f"mean {verdict['mean_delta_e']:.2f}, max {verdict['max_delta_e']:.2f} in the {_esc(verdict['mode'])} mode. "
+        f"Thresholds: {_esc(verdict['thresholds'])}.</p>{advice}"
+        f"<p>What this kind of calibration ({_esc(expected['kind'])}) reaches on the spectral simulator "
+        f"({_esc(conditions['sensor'])} at {conditions['size'][0]} x {conditions['size'][1]}, with noise; "
+        "docs/accuracy.md), in the same mode, with the floor: the best any per-bin 3 x 3 reaches on that target.</p>"
+        "<table><tr><th>workflow</th><th>calibration</th><th>target</th><th>lens</th><th>mean</th><th>max</th>"
+        f"<th>floor (mean)</th></tr>{rows}</table>"
+    )
 
 
 def write_report(
@@ -240,7 +268,7 @@ def write_report(
             step(f"test image {index + 1} of {len(raws)}")
             section, result = _test_image_section(calibration, raw, build, index, layout)
             sections.append(section)
-            analyses.append({"image": raw.source, "analysis": result})
+            analyses.append(result)
         page = _page(calibration, checks, figures, sections)
         (build / "index.html").write_text(page, encoding="utf-8")
         record = {"software_version": __version__, "checks": checks, "test_images": analyses}

@@ -64,11 +64,13 @@ __all__ = [
     "REFERENCE_AMOUNTS",
     "Optics",
     "SimulatedCamera",
+    "balance_gains",
     "check_dust_count",
     "dust_specks",
     "expected_response",
     "ground_truth",
     "make_camera",
+    "readout",
     "render",
     "white_balance_gains",
 ]
@@ -329,17 +331,27 @@ def make_camera(
     return replace(camera, scale=exposure * (camera.white_level - camera.black_level) / peak)
 
 
-def _box_factors(camera: SimulatedCamera, axis: int) -> np.ndarray:
-    """``box(n - d(q); s_f)`` for filter colour f, offset n in -2..2 and pixel q along an axis: (3, 5, N)."""
+def _box_factors(
+    camera: SimulatedCamera, axis: int, sigma: ArrayLike | None = None, ray_slope: float = 0.0
+) -> np.ndarray:
+    """``box(n - d(q); s_f)`` for filter colour f, offset n in -2..2 and pixel q along an axis: (3, 5, N).
+
+    ``sigma`` replaces the optics' three spot widths (the spectral model passes one wavelength band's width
+    three times); ``ray_slope`` is the tangent of the chief ray angle per pixel of distance from the optical
+    axis of a lens in front of the sensor, which moves each spot outwards by ``stack_height * ray_slope * r``
+    and so undoes part of the lenslet shift (all of it for the lens the compensation was designed for).
+    """
     optics = camera.optics
     k, t = _lenslet_geometry(camera)
+    k -= optics.stack_height * ray_slope
     n_pix = camera.width if axis == 0 else camera.height
     q = np.arange(n_pix, dtype=np.float64)
     d = -k * (q - (n_pix - 1) / 2.0) + t[axis]
     u = np.asarray(_OFFSETS, dtype=np.float64)[:, None] - d[None, :]
     half = optics.photodiode_width / 2.0
-    sigma = np.asarray(optics.spot_sigma, dtype=np.float64)[:, None, None]
-    return ndtr((u + half) / sigma) - ndtr((u - half) / sigma)
+    widths = optics.spot_sigma if sigma is None else sigma
+    spot = np.asarray(widths, dtype=np.float64)[:, None, None]
+    return ndtr((u + half) / spot) - ndtr((u - half) / spot)
 
 
 def _offsets_of_parity(parity: int) -> list[int]:
@@ -354,8 +366,15 @@ def _source_colour(colours: np.ndarray, sy: int, sx: int, py: int, px: int) -> i
 def _uniform_response(camera: SimulatedCamera, amounts: ArrayLike) -> np.ndarray:
     """Noiseless response (DN, black-subtracted, float64) to a uniform scene, as a sum of outer products."""
     light = camera.optics.filtered_light() @ np.asarray(amounts, dtype=np.float64) * camera.scale
+    return _uniform_spread(camera, light, _box_factors(camera, 0), _box_factors(camera, 1))
+
+
+def _uniform_spread(camera: SimulatedCamera, light: np.ndarray, bx: np.ndarray, by: np.ndarray) -> np.ndarray:
+    """Noiseless response (float64, H x W) to uniform light ``light[f]`` behind every filter of colour f.
+
+    ``bx`` and ``by`` are the box factors of :func:`_box_factors` along x and y.
+    """
     colours = site_channels(camera.pattern)
-    bx, by = _box_factors(camera, 0), _box_factors(camera, 1)
     out = np.zeros((camera.height, camera.width), dtype=np.float64)
     for sy in (0, 1):
         for sx in (0, 1):
@@ -382,16 +401,19 @@ def _light_image(camera: SimulatedCamera, scene: np.ndarray) -> np.ndarray:
     return light
 
 
-def _spread(camera: SimulatedCamera, light: np.ndarray) -> np.ndarray:
+def _spread(
+    camera: SimulatedCamera, light: np.ndarray, boxes: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
     """Collect the light of every lenslet on the photodiodes (float32, H x W), per site parity and offset.
 
     For photodiode site (sy, sx) the lenslets at offsets of parity (py, px) all have the same colour and
     lie on one parity plane of the padded light image; a horizontal pass over their column offsets and a
     vertical pass over their row offsets, each weighted by its 1-D box factor, give their contribution.
+    ``boxes`` are the box factors along x and y (:func:`_box_factors`), by default the optics' own.
     """
     colours = site_channels(camera.pattern)
-    bx = _box_factors(camera, 0).astype(np.float32)
-    by = _box_factors(camera, 1).astype(np.float32)
+    bx, by = (_box_factors(camera, 0), _box_factors(camera, 1)) if boxes is None else boxes
+    bx, by = bx.astype(np.float32), by.astype(np.float32)
     h2, w2 = camera.height // 2, camera.width // 2
     padded = np.pad(light, _PAD, mode="reflect")  # reflect keeps the Bayer parity of mirrored pixels
     planes = [[np.ascontiguousarray(padded[pr::2, pc::2]) for pc in (0, 1)] for pr in (0, 1)]
@@ -514,11 +536,22 @@ def white_balance_gains(camera: SimulatedCamera) -> list[float]:
     >>> white_balance_gains(make_camera("imx219", size=(320, 240)))
     [2.0023, 1.0316]
     """
-    white = _uniform_response(camera, REFERENCE_AMOUNTS["white"])
-    y0, x0 = camera.height // 8 * 2, camera.width // 8 * 2
-    centre = white[y0 : camera.height - y0, x0 : camera.width - x0]
+    return balance_gains(_uniform_response(camera, REFERENCE_AMOUNTS["white"]), camera.pattern)
+
+
+def balance_gains(white: np.ndarray, pattern: str) -> list[float]:
+    """G / R and G / B of a white response mosaic (H, W) over its central half, rounded to 4 decimals.
+
+    Examples
+    --------
+    >>> balance_gains(np.tile([[1.0, 2.0], [2.0, 4.0]], (4, 4)), "RGGB")
+    [2.0, 0.5]
+    """
+    height, width = white.shape
+    y0, x0 = height // 8 * 2, width // 8 * 2
+    centre = white[y0 : height - y0, x0 : width - x0]
     sites = np.array([centre[k // 2 :: 2, k % 2 :: 2].mean() for k in range(4)])
-    red, green, blue = sites_to_channels(sites, camera.pattern)
+    red, green, blue = sites_to_channels(sites, pattern)
     return [round(float(green / red), 4), round(float(green / blue), 4)]
 
 
@@ -605,7 +638,46 @@ def render(
     ('uint16', 'black', 64)
     """
     amounts, name = _scene_amounts(camera, scene)
-    signal = _response(camera, amounts, dust)
+    raw = readout(camera, _response(camera, amounts, dust), noise=noise, rng=rng, scene=name)
+    if dust:
+        raw.metadata["dust"] = [dict(speck) for speck in dust]
+    return raw
+
+
+def readout(
+    camera: SimulatedCamera,
+    signal: np.ndarray,
+    *,
+    noise: bool = True,
+    rng: np.random.Generator | int | None = None,
+    scene: str = "custom",
+) -> RawImage:
+    """Read a noiseless exposure out as a raw frame: shot and read noise, black level, rounding and clipping.
+
+    Parameters
+    ----------
+    camera : SimulatedCamera
+    signal : ndarray, shape (H, W)
+        Mean DN above black of each pixel (:func:`expected_response`, or the spectral model's).
+    noise : bool
+        Add shot noise (Poisson in electrons) and Gaussian read noise.
+    rng : numpy Generator or int, optional
+        Random source or seed of the noise.
+    scene : str
+        The scene's name, ``metadata["scene"]``.
+
+    Returns
+    -------
+    RawImage
+        As :func:`render`.
+
+    Examples
+    --------
+    >>> camera = make_camera("imx219", size=(320, 240))
+    >>> raw = readout(camera, np.full((240, 320), 100.0), noise=False, scene="grey")
+    >>> int(raw.bayer[0, 0]), raw.metadata["scene"]
+    (164, 'grey')
+    """
     if noise:
         rng = np.random.default_rng(rng)
         gain = camera.electrons_per_dn
@@ -621,10 +693,8 @@ def render(
         "exposure_time_s": _EXPOSURE_TIME_S,
         "analogue_gain": _ANALOGUE_GAIN,
         "tilt_deg": list(camera.tilt),
-        "scene": name,
+        "scene": scene,
     }
-    if dust:
-        metadata["dust"] = [dict(speck) for speck in dust]
     return RawImage(
         bayer,
         camera.pattern,
