@@ -504,6 +504,22 @@ case("acquire --camera unknown", lambda d, b: ["acquire", "--camera", "webcam", 
      d / "run"], "webcam")  # fmt: skip
 case("acquire --size 60000x60000", lambda d, b: ["acquire", "--camera", "sim", "--illuminator", "sim", "--size",
      "60000x60000", "--out", d / "run"], "60000x60000")  # fmt: skip
+# extra colour references, the noise bound, the screens (issue 13)
+case("calibrate --max-noise-penalty 0.5", calibrate_with("--max-noise-penalty", "0.5"), "--max-noise-penalty", "0.5")
+case("calibrate --max-noise-penalty nan", calibrate_with("--max-noise-penalty", "nan"), "--max-noise-penalty")
+case("calibrate --colour identical to red", lambda d, b: ["calibrate", *sim_refs(b), "--colour",
+     f"same={b / 'sim' / 'red.dng'}", "--out", d / "cal.npz"], "red.dng")  # fmt: skip
+case("calibrate --colour named twice", lambda d, b: ["calibrate", *sim_refs(b), "--colour",
+     f"a={b / 'sim' / 'target.dng'}", "--colour", f"a={b / 'sim' / 'white.dng'}", "--out", d / "cal.npz"],
+     "--colour")  # fmt: skip
+case("target --colour without --screens", target_with("--colour", "cyan=0,255,255"), "--colour")
+case("target --screens --colour 300", target_with("--screens", "--colour", "cyan=0,300,255", out="screens"),
+     "--colour", "300")  # fmt: skip
+case("acquire --colour red", acquire_with("--colour", "red=255,0,0"), "--colour", "red")
+case("acquire --colour two values", acquire_with("--colour", "cyan=0,255"), "--colour", "NAME=R,G,B")
+case("simulate --spectral --colour 256", simulate_with("--size", "96x64", "--spectral", "--colour", "amber=256,0,0"),
+     "--colour", "256")  # fmt: skip
+case("simulate --spectral --dust 3", simulate_with("--size", "96x64", "--spectral", "--dust", "3"), "--dust")
 # the pixel limit's own variable
 case("PICAMCAL_MAX_PIXELS=many", lambda d, b: ["inspect", b / "sim" / "white.dng"], "PICAMCAL_MAX_PIXELS",
      env={"PICAMCAL_MAX_PIXELS": "many"})  # fmt: skip

@@ -69,7 +69,12 @@ def test_the_kind_of_each_calibration(refs, full):
     assert workflow_kind(picamcal.calibrate_in_situ(refs["white"], full)) == "in-situ"
     camera = make_camera("imx219", size=(320, 240))
     cyan = render(camera, (0.0, 1.0, 1.0), rng=7)
-    assert workflow_kind(picamcal.calibrate(**refs, colours={"cyan": cyan})) == "least-squares"
+    extras = picamcal.calibrate(**refs, colours={"cyan": cyan})
+    assert workflow_kind(extras) == "least-squares"
+    names = [w["name"] for w in expected_accuracy(extras)["workflows"]]
+    assert "screen-extras" in names and "screen" in names and "jig-bounded-4" not in names
+    bounded = picamcal.calibrate(**refs, max_noise_penalty=3.0)
+    assert "jig-bounded-4" in [w["name"] for w in expected_accuracy(bounded)["workflows"]]
     # A full calibration may come from the jig or from references in the target's own spectra: both are shown.
     assert {w["calibration"] for w in expected_accuracy(full)["workflows"]} == {"jig", "screen", "sheets"}
 

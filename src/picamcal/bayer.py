@@ -155,3 +155,33 @@ def sites_to_channels(sites: np.ndarray, pattern: str) -> np.ndarray:
     for site, channel in enumerate(idx):
         out[..., channel] += sites[..., site]
     return out / counts
+
+
+def central_half(height: int, width: int) -> tuple[slice, slice]:
+    """Rows and columns of the central half of a frame (each side), on whole 2x2 blocks.
+
+    Where a camera's white balance is measured on the white reference: ``picamcal acquire`` freezes its
+    ``ColourGains`` there, and the simulator its ``colour_gains`` (:func:`balance_gains`).
+
+    Examples
+    --------
+    >>> central_half(240, 320)
+    (slice(60, 180, None), slice(80, 240, None))
+    """
+    y0, x0 = height // 8 * 2, width // 8 * 2
+    return slice(y0, height - y0), slice(x0, width - x0)
+
+
+def balance_gains(white: np.ndarray, pattern: str) -> tuple[float, float]:
+    """The white balance (green / red, green / blue) of a black-subtracted white mosaic over its central half.
+
+    Examples
+    --------
+    >>> balance_gains(np.tile([[1.0, 2.0], [2.0, 4.0]], (4, 4)), "RGGB")
+    (2.0, 0.5)
+    """
+    rows, cols = central_half(*white.shape)
+    centre = white[rows, cols]
+    sites = np.array([centre[k // 2 :: 2, k % 2 :: 2].mean(dtype=np.float64) for k in range(4)])
+    red, green, blue = sites_to_channels(sites, pattern)
+    return float(green / red), float(green / blue)

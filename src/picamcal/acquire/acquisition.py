@@ -33,7 +33,7 @@ import numpy as np
 
 from .._atomic import atomic_path
 from .._version import __version__
-from ..bayer import sites_to_channels
+from ..bayer import balance_gains
 from ..calibrate import MAX_CLIPPED_FRACTION
 from ..colour_wheel import wheel_layout, wheel_scene
 from ..errors import OutputError, PicamcalError, PicamcalWarning
@@ -82,14 +82,11 @@ def _white_statistics(raw: RawImage, percentile: float) -> tuple[float, float]:
 
 def _colour_gains(raw: RawImage) -> tuple[float, float]:
     """Red and blue gains that make the centre of the white neutral (green / red, green / blue)."""
-    signal = raw.black_subtracted()
-    y0, x0 = raw.height // 8 * 2, raw.width // 8 * 2  # the central half, on whole 2x2 blocks
-    centre = signal[y0 : raw.height - y0, x0 : raw.width - x0]
-    sites = np.array([centre[k // 2 :: 2, k % 2 :: 2].mean(dtype=np.float64) for k in range(4)])
-    red, green, blue = sites_to_channels(sites, raw.pattern)
-    if min(red, green, blue) <= 0:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        red, blue = balance_gains(raw.black_subtracted(), raw.pattern)
+    if not (np.isfinite(red) and np.isfinite(blue) and red > 0 and blue > 0):
         return 1.0, 1.0
-    return round(float(green / red), 4), round(float(green / blue), 4)
+    return round(red, 4), round(blue, 4)
 
 
 def auto_expose(

@@ -94,6 +94,9 @@ def _accuracy_record() -> dict[str, Any]:
 def expected_accuracy(calibration: Calibration) -> dict[str, Any]:
     """The accuracy measured on the spectral simulator for the workflows that could have made this calibration.
 
+    The candidates are the workflows of the calibration's kind (:func:`workflow_kind`), without additions and with
+    those the calibration has too (extra references, a noise bound).
+
     Returns
     -------
     dict
@@ -128,10 +131,11 @@ def expected_accuracy(calibration: Calibration) -> dict[str, Any]:
 
 
 def _fits(row: Mapping[str, Any], calibration: Calibration) -> bool:
-    """Whether a workflow's extras (extra references, a noise bound) are those of the calibration."""
+    """Whether a workflow's additions (extra references, a noise bound), if any, are ones the calibration has too."""
     options = row.get("options", {})
-    bounded = options.get("max_noise_penalty") is not None
-    return bool(options.get("colours")) == _has_extras(calibration) and bounded == (calibration.noise_limit is not None)
+    if options.get("colours") and not _has_extras(calibration):
+        return False
+    return options.get("max_noise_penalty") is None or calibration.noise_limit is not None
 
 
 def _scored_mode(calibration: Calibration) -> str:

@@ -25,7 +25,7 @@ from rich.progress import (
 
 from .._atomic import refuse_foreign, refuse_inputs_as_output
 from .._version import __version__
-from ..errors import OutputError, closest
+from ..errors import OutputError, PicamcalError, closest
 from ..modes import MODE_NAMES, Mode, parse_mode
 
 app = typer.Typer(
@@ -219,6 +219,16 @@ def _root(
     ] = None,
 ) -> None:
     """Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics."""
+
+
+def parse_colour_options(specs: Sequence[str] | None) -> dict[str, tuple[int, int, int]]:
+    """``--colour NAME=R,G,B`` (repeatable) as name -> (R, G, B), 0-255 (:func:`picamcal.references.parse_colours`)."""
+    from ..references import parse_colours
+
+    try:
+        return parse_colours(specs or ())
+    except PicamcalError as exc:
+        raise typer.BadParameter(exc.problem, param_hint="--colour") from None
 
 
 def parse_tiles(text: str | None) -> tuple[int, int] | None:

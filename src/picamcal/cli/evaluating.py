@@ -12,7 +12,16 @@ from rich.table import Table
 
 from .._atomic import atomic_path, refuse_inputs_as_output
 from ..errors import OutputError, PicamcalError
-from ._common import app, check_output, console, in_range, parse_size, progress_bar, stdout_console
+from ._common import (
+    app,
+    check_output,
+    console,
+    in_range,
+    parse_colour_options,
+    parse_size,
+    progress_bar,
+    stdout_console,
+)
 
 
 @app.command("target")
@@ -47,16 +56,12 @@ def target_cmd(
     The same target `picamcal simulate` photographs, laid out on WIDTHxHEIGHT pixels. With --screens, the
     full-screen references too, for a calibration in the monitor's own colours.
     """
-    from ..references import parse_colours
     from ..target import is_target_file, save_screens, save_target
 
     width, height = parse_size(size) or (1920, 1080)
     if colour and not screens:
         raise typer.BadParameter("it names a full-screen colour: give --screens too", param_hint="--colour")
-    try:
-        colours = parse_colours(colour or ())
-    except PicamcalError as exc:
-        raise typer.BadParameter(exc.problem, param_hint="--colour") from None
+    colours = parse_colour_options(colour)
     target = not screens or out.suffix.lower() in (".png", ".pdf")
     if target and out.suffix.lower() not in (".png", ".pdf"):
         raise typer.BadParameter("the target is written as .png or .pdf", param_hint="--out")

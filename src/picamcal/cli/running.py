@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from .._atomic import refuse_inputs_as_output
-from ._common import app, choice, console, in_range, parse_size, progress_bar, stdout_console
+from ._common import app, choice, console, in_range, parse_colour_options, parse_size, progress_bar, stdout_console
 
 
 @app.command("simulate")
@@ -52,7 +52,6 @@ def simulate_cmd(
 
     fmt = choice(fmt, list(RAW_WRITERS), "--format")
     if spectral:
-        from ..references import parse_colours
         from ..simulate.spectral_run import amounts_of, simulate_spectral_run
 
         if dust:
@@ -65,7 +64,7 @@ def simulate_cmd(
                 source=choice(source or "jig", list(SOURCES), "--source"),
                 target=choice(target or "monitor", list(TARGETS), "--target"),
                 lens=choice(lens or "none", list(LENSES), "--lens"),
-                colours=None if colour is None else amounts_of(parse_colours(colour)),
+                colours=None if colour is None else amounts_of(parse_colour_options(colour)),
                 pattern=pattern,
                 size=parse_size(size),
                 tilt=tilt,
@@ -110,8 +109,7 @@ def acquire_cmd(
     colour: Annotated[
         list[str] | None,
         typer.Option(
-            help="An extra colour reference NAME=R,G,B (0-255), captured as colour_NAME after the five "
-            "(repeatable)."
+            help="An extra colour reference NAME=R,G,B (0-255), captured as colour_NAME after the five (repeatable)."
         ),
     ] = None,
     extra: Annotated[
@@ -141,13 +139,8 @@ def acquire_cmd(
 ) -> None:
     """Capture a calibration run: auto-expose on white, freeze, then white, red, green, blue, black, colours, extras."""
     from ..acquire.acquisition import acquire, open_rig
-    from ..errors import PicamcalError
-    from ..references import parse_colours
 
-    try:
-        colours = parse_colours(colour or ())
-    except PicamcalError as exc:
-        raise typer.BadParameter(exc.problem, param_hint="--colour") from None
+    colours = parse_colour_options(colour)
 
     def show(message: str, done: int, total: int) -> None:
         # One line per step rather than a live bar, so it never draws over the prompts.

@@ -27,7 +27,7 @@ from typing import Any, TypedDict
 import numpy as np
 
 from .._json import Fields
-from ..bayer import sites_to_channels
+from ..bayer import central_half, sites_to_channels
 from ..calibration import Calibration
 from ..errors import PicamcalError
 from ..raw.model import RawImage, site_channels
@@ -652,7 +652,8 @@ class ProcessedInputs(TypedDict):
 def calibration_colour_gains(calibration: Calibration) -> tuple[float, float]:
     """The white balance of a camera frozen on the calibration's white reference: (green / red, green / blue).
 
-    The white's bins over the central half of the frame (on whole 2 x 2 blocks), before any lens shading table:
+    The white's bins over the central half of the frame (:func:`picamcal.bayer.central_half`), before any lens
+    shading table:
     the region where ``picamcal acquire`` measures the ``ColourGains`` it freezes for the references (and where
     the simulator measures its ``colour_gains``), and the paper's procedure freezes the camera's.
 
@@ -664,10 +665,10 @@ def calibration_colour_gains(calibration: Calibration) -> tuple[float, float]:
     >>> [round(g, 3) for g in gains], refs["white"].metadata["colour_gains"]  # the camera's own
     ([2.007, 1.031], [2.0023, 1.0316])
     """
-    height, width = calibration.height, calibration.width
+    half_rows, half_cols = central_half(calibration.height, calibration.width)
     centre_y, centre_x = calibration.bin_centres
-    rows = (centre_y >= height // 8 * 2) & (centre_y < height - height // 8 * 2)
-    cols = (centre_x >= width // 8 * 2) & (centre_x < width - width // 8 * 2)
+    rows = (centre_y >= half_rows.start) & (centre_y < half_rows.stop)
+    cols = (centre_x >= half_cols.start) & (centre_x < half_cols.stop)
     sites = calibration.site_white[rows][:, cols].reshape(-1, 4).mean(axis=0, dtype=np.float64)
     red, green, blue = sites_to_channels(sites, calibration.pattern)
     return float(green / red), float(green / blue)

@@ -52,7 +52,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import ndtr
 
-from ..bayer import bin_sites, sites_to_channels
+from ..bayer import balance_gains, bin_sites
 from ..errors import PicamcalError
 from ..limits import MAX_PIXELS_VARIABLE, max_pixels
 from ..raw.model import PATTERNS, RawImage, site_channels
@@ -64,7 +64,6 @@ __all__ = [
     "REFERENCE_AMOUNTS",
     "Optics",
     "SimulatedCamera",
-    "balance_gains",
     "check_dust_count",
     "dust_specks",
     "expected_response",
@@ -536,23 +535,7 @@ def white_balance_gains(camera: SimulatedCamera) -> list[float]:
     >>> white_balance_gains(make_camera("imx219", size=(320, 240)))
     [2.0023, 1.0316]
     """
-    return balance_gains(_uniform_response(camera, REFERENCE_AMOUNTS["white"]), camera.pattern)
-
-
-def balance_gains(white: np.ndarray, pattern: str) -> list[float]:
-    """G / R and G / B of a white response mosaic (H, W) over its central half, rounded to 4 decimals.
-
-    Examples
-    --------
-    >>> balance_gains(np.tile([[1.0, 2.0], [2.0, 4.0]], (4, 4)), "RGGB")
-    [2.0, 0.5]
-    """
-    height, width = white.shape
-    y0, x0 = height // 8 * 2, width // 8 * 2
-    centre = white[y0 : height - y0, x0 : width - x0]
-    sites = np.array([centre[k // 2 :: 2, k % 2 :: 2].mean() for k in range(4)])
-    red, green, blue = sites_to_channels(sites, pattern)
-    return [round(float(green / red), 4), round(float(green / blue), 4)]
+    return [round(g, 4) for g in balance_gains(_uniform_response(camera, REFERENCE_AMOUNTS["white"]), camera.pattern)]
 
 
 def dust_specks(

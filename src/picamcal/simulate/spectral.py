@@ -49,7 +49,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..bayer import bin_sites, centre_region, sites_to_channels
+from ..bayer import balance_gains, bin_sites, centre_region, sites_to_channels
 from ..errors import PicamcalError
 from ..raw.model import RawImage, site_channels
 from .physics import (
@@ -58,7 +58,6 @@ from .physics import (
     _box_factors,
     _spread,
     _uniform_spread,
-    balance_gains,
     make_camera,
     readout,
 )
@@ -367,7 +366,7 @@ def white_balance(camera: SpectralCamera, white: ArrayLike) -> list[float]:
     >>> len(gains), all(g > 0 for g in gains)
     (2, True)
     """
-    return balance_gains(expected_spectral_response(camera, white), camera.pattern)
+    return [round(g, 4) for g in balance_gains(expected_spectral_response(camera, white), camera.pattern)]
 
 
 def bin_responses(camera: SpectralCamera, spectra: ArrayLike, bin_size: int = 16) -> np.ndarray:
