@@ -131,8 +131,11 @@ def expected_accuracy(calibration: Calibration) -> dict[str, Any]:
 
 
 def _fits(row: Mapping[str, Any], calibration: Calibration) -> bool:
-    """Whether a workflow's additions (extra references, a noise bound), if any, are ones the calibration has too."""
+    """Whether a workflow's additions (extra references, a noise bound), if any, are ones the calibration has too,
+    and it scores raw images, as the report does."""
     options = row.get("options", {})
+    if options.get("processed"):  # the report scores raw test images
+        return False
     if options.get("colours") and not _has_extras(calibration):
         return False
     return options.get("max_noise_penalty") is None or calibration.noise_limit is not None

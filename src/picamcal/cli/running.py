@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
@@ -50,13 +50,20 @@ def simulate_cmd(
     """Simulate a calibration run: five references, `picamcal target`'s target filling the frame, the ground truth."""
     from ..simulate import LENSES, RAW_WRITERS, SOURCES, TARGETS, simulate_run
 
-    fmt = choice(fmt, list(RAW_WRITERS), "--format")
+    common: dict[str, Any] = {
+        "pattern": pattern,
+        "size": parse_size(size),
+        "tilt": tilt,
+        "seed": seed,
+        "noise": noise,
+        "fmt": choice(fmt, list(RAW_WRITERS), "--format"),
+        "overwrite": overwrite,
+    }
     if spectral:
         from ..simulate.spectral_run import amounts_of, simulate_spectral_run
 
         if dust:
             raise typer.BadParameter("--dust is not simulated with --spectral")
-
         with console.status(f"simulating {sensor} (spectral)"):
             paths = simulate_spectral_run(
                 out,
@@ -65,33 +72,15 @@ def simulate_cmd(
                 target=choice(target or "monitor", list(TARGETS), "--target"),
                 lens=choice(lens or "none", list(LENSES), "--lens"),
                 colours=None if colour is None else amounts_of(parse_colour_options(colour)),
-                pattern=pattern,
-                size=parse_size(size),
-                tilt=tilt,
-                seed=seed,
-                noise=noise,
-                fmt=fmt,
-                overwrite=overwrite,
+                **common,
             )
-        console.print(f"wrote {len(paths)} files to {out}")
-        return
-    options = {"--source": source, "--target": target, "--lens": lens, "--colour": colour}
-    given = [name for name, value in options.items() if value is not None]
-    if given:
-        raise typer.BadParameter(f"{given[0]} needs --spectral")
-    with console.status(f"simulating {sensor}"):
-        paths = simulate_run(
-            out,
-            sensor,
-            pattern=pattern,
-            size=parse_size(size),
-            tilt=tilt,
-            seed=seed,
-            noise=noise,
-            dust=dust,
-            fmt=fmt,
-            overwrite=overwrite,
-        )
+    else:
+        options = {"--source": source, "--target": target, "--lens": lens, "--colour": colour}
+        given = [name for name, value in options.items() if value is not None]
+        if given:
+            raise typer.BadParameter(f"{given[0]} needs --spectral")
+        with console.status(f"simulating {sensor}"):
+            paths = simulate_run(out, sensor, dust=dust, **common)
     console.print(f"wrote {len(paths)} files to {out}")
 
 

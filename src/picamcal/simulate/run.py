@@ -115,6 +115,20 @@ def run_camera(
     return camera
 
 
+def check_run_outputs(paths: Mapping[str, Path], overwrite: bool) -> None:
+    """Refuse a run's outputs that exist, unless ``overwrite`` and the folder is a run picamcal simulated (its
+    ``truth_json`` says so): --overwrite replaces only what picamcal wrote."""
+    existing = [path for path in paths.values() if path.exists() or path.is_symlink()]
+    if existing and not overwrite:
+        raise OutputError("exists already (use --overwrite to replace it)", existing[0])
+    if existing and not _is_simulated_run(paths["truth_json"]):
+        raise OutputError(
+            "exists and the folder is not a simulated run (it has no truth.json of one): --overwrite replaces only "
+            "what picamcal simulated; choose another output folder",
+            existing[0],
+        )
+
+
 def _is_simulated_run(truth_json: Path) -> bool:
     """Whether ``truth_json`` is the record :func:`simulate_run` writes (a regular file: a FIFO would block)."""
     if not truth_json.is_file() or truth_json.is_symlink():
@@ -193,15 +207,7 @@ def simulate_run(
     out = Path(out_dir)
     paths = {name: out / f"{name}{suffix}" for name in (*ROLES, "target")}
     paths.update(layout=out / "layout.json", truth_npz=out / "truth.npz", truth_json=out / "truth.json")
-    existing = [path for path in paths.values() if path.exists() or path.is_symlink()]
-    if existing and not overwrite:
-        raise OutputError("exists already (use --overwrite to replace it)", existing[0])
-    if existing and not _is_simulated_run(paths["truth_json"]):
-        raise OutputError(
-            "exists and the folder is not a simulated run (it has no truth.json of one): --overwrite replaces only "
-            "what picamcal simulated; choose another output folder",
-            existing[0],
-        )
+    check_run_outputs(paths, overwrite)
     truth = ground_truth(camera, bin_size=bin_size)
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -48,6 +48,7 @@ from .spectral import (
     make_spectral_camera,
 )
 from .spectral_scenes import (
+    SECONDARY_COLOURS,
     TargetScene,
     jig_source,
     monitor_source,
@@ -68,6 +69,7 @@ __all__ = [
     "floor_unmixing",
     "format_accuracy_table",
     "measure_workflow",
+    "processed_target",
     "score_target",
     "target_truth",
 ]
@@ -95,15 +97,20 @@ WORKFLOWS: dict[str, tuple[str, str, str]] = {
     "jig-extras": ("jig", "monitor", "none"),
     "jig-bounded-4": ("jig", "monitor", "none"),
     "screen-bounded-4": ("screen", "monitor", "none"),
+    "jig-monitor-processed": ("jig", "monitor", "none"),
+    "screen-processed": ("screen", "monitor", "none"),
 }
 
-#: Workflows that add to their calibration: extra references (a least-squares unmixing per bin) or a bound on the
-#: noise penalty (:func:`picamcal.calibrate`'s ``colours`` and ``max_noise_penalty``), by name.
+#: Workflows that add to their calibration, by name: extra references (a least-squares unmixing per bin) or a bound
+#: on the noise penalty (:func:`picamcal.calibrate`'s ``colours`` and ``max_noise_penalty``); or that correct the
+#: camera's processed image instead of the raw one (``processed``: :func:`measure_workflow`).
 WORKFLOW_OPTIONS: dict[str, dict[str, Any]] = {
-    "screen-extras": {"colours": {"cyan": (0.0, 1.0, 1.0), "magenta": (1.0, 0.0, 1.0), "yellow": (1.0, 1.0, 0.0)}},
-    "jig-extras": {"colours": {"cyan": (0.0, 1.0, 1.0), "magenta": (1.0, 0.0, 1.0), "yellow": (1.0, 1.0, 0.0)}},
+    "screen-extras": {"colours": SECONDARY_COLOURS},
+    "jig-extras": {"colours": SECONDARY_COLOURS},
     "jig-bounded-4": {"max_noise_penalty": 4.0},
     "screen-bounded-4": {"max_noise_penalty": 4.0},
+    "jig-monitor-processed": {"processed": "vc4"},
+    "screen-processed": {"processed": "vc4"},
 }
 
 
@@ -300,6 +307,7 @@ def measure_workflow(
     modes: Sequence[str] = ("uncorrected", "flat", "centre"),
     colours: Mapping[str, tuple[float, float, float]] | None = None,
     max_noise_penalty: float | None = None,
+    processed: str | None = None,
     camera_options: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Calibrate as a workflow does, photograph the target through the lens, and score every mode and the floor.
@@ -327,6 +335,11 @@ def measure_workflow(
         ``colours``).
     max_noise_penalty : float, optional
         :func:`picamcal.calibrate`'s noise-limited unmixing.
+    processed : {"vc4", "pisp"}, optional
+        Correct what the camera's ISP makes of the target instead of the raw frame (:func:`processed_target`): the
+        sensor's stock tuning file for that platform with the calibration's lens shading table, no colour matrix,
+        its tone curve into 16 bits and back, then :func:`picamcal.correct.correct_processed` in the centre mode
+        (the only mode scored).
     camera_options : dict, optional
         More keyword arguments of :func:`make_spectral_camera` (spot widths, optics), for both cameras.
 
@@ -362,9 +375,12 @@ def measure_workflow(
         max_noise_penalty=max_noise_penalty,
     )
     raw, scene = spectral_target(camera, target, noise=noise, seed=seed)
-    scores = {
-        mode: score_target(correct(raw, cal, mode), scene) for mode in modes if mode in {m.value for m in cal.modes}
-    }
+    if processed is not None:
+        scores = {"centre": score_target(processed_target(raw, cal, sensor, processed), scene)}
+    else:
+        scores = {
+            mode: score_target(correct(raw, cal, mode), scene) for mode in modes if mode in {m.value for m in cal.modes}
+        }
     best = floor_calibration(cal, floor_unmixing(camera, cal, scene))
     penalty = cal.noise_penalty("centre" if cal.has_unmixing else "flat")
     return {
@@ -374,6 +390,45 @@ def measure_workflow(
         "floor_residual": floor_residual(camera, cal, scene),
         "noise_penalty": {"max": float(penalty.max()), "mean": float(penalty.mean())},
     }
+
+
+def processed_target(raw: RawImage, calibration: Calibration, sensor: str, platform: str) -> np.ndarray:
+    """The target through the camera's ISP and back, corrected: what ``picamcal correct --processed --tuning`` gives.
+
+    The ISP is emulated (:func:`picamcal.export.isp.apply_tuning`) with the sensor's stock tuning file for
+    ``platform`` (``vc4`` or ``pisp``) carrying the calibration's lens shading table
+    (:func:`picamcal.export.tuning.export_tuning`) and no colour matrix, at the colour gains the camera froze on the
+    calibration's white (:func:`picamcal.export.isp.calibration_colour_gains`); the result is encoded with the
+    tuning's tone curve to 16 bits, as a PNG holds it, decoded (:func:`picamcal.raw.processed.linearise`) and
+    corrected in the centre mode with :func:`picamcal.export.isp.processed_inputs`.
+
+    Examples
+    --------
+    >>> camera = make_spectral_camera("imx219", size=(320, 240))
+    >>> cal = calibrate_references(spectral_references(camera, monitor_source(), noise=False))
+    >>> raw, scene = spectral_target(camera, "monitor", noise=False)
+    >>> processed_target(raw, cal, "imx219", "vc4").shape
+    (240, 320, 3)
+    """
+    import warnings
+
+    from ..correct import correct_processed
+    from ..export.isp import apply_tuning, calibration_colour_gains, processed_inputs
+    from ..export.tuning import TARGET_NAMES, export_tuning, load_tuning, stock_tuning_path
+    from ..raw.processed import linearise, tuning_gamma_curve
+
+    path = stock_tuning_path(sensor, TARGET_NAMES[platform])
+    with warnings.catch_warnings():  # the stock file's other sections are not what is measured
+        warnings.simplefilter("ignore")
+        tuning = export_tuning(calibration, load_tuning(path))
+    gains = calibration_colour_gains(calibration)
+    isp = apply_tuning(raw, tuning, colour_gains=gains)
+    linear, encoded = tuning_gamma_curve(path)
+    scale = float(np.percentile(isp, 99.9))
+    codes = np.round(65535 * np.interp(np.clip(isp / scale, 0, 1), linear, encoded))
+    image = linearise(codes / 65535, f"tuning:{path}")
+    inputs: dict[str, Any] = {**processed_inputs(tuning, calibration, image, colour_gains=gains), "ccm": None}
+    return correct_processed(image, calibration, "centre", **inputs) * scale
 
 
 def accuracy_table(workflows: Sequence[str] | None = None, **options: Any) -> list[dict[str, Any]]:
@@ -410,6 +465,7 @@ def accuracy_table(workflows: Sequence[str] | None = None, **options: Any) -> li
             row["options"] = {
                 "colours": sorted(extra.get("colours", {})),
                 "max_noise_penalty": extra.get("max_noise_penalty"),
+                "processed": extra.get("processed"),
             }
         rows.append(row)
     return rows
@@ -435,4 +491,3 @@ def format_accuracy_table(rows: Sequence[dict[str, Any]]) -> str:
         cells.append(f"{row['noise_penalty']['max']:.1f}")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
-

@@ -29,11 +29,12 @@ from ..calibrate import calibrate_in_situ
 from ..correct import correct
 from ..errors import OutputError, PicamcalError
 from ..references import ROLES
-from .run import RAW_WRITERS, _is_simulated_run, _write_json
+from .run import RAW_WRITERS, _write_json, check_run_outputs
 from .scenes import check_seed, stream
 from .spectral import LENSES, SpectralCamera, least_squares_unmixing, make_spectral_camera, render_spectral
 from .spectral_accuracy import calibrate_references, floor_calibration, floor_residual, score_target, target_truth
 from .spectral_scenes import (
+    SECONDARY_COLOURS,
     SOURCES,
     TARGETS,
     LightSource,
@@ -44,14 +45,7 @@ from .spectral_scenes import (
     target_white,
 )
 
-__all__ = ["DEFAULT_COLOURS", "amounts_of", "simulate_spectral_run"]
-
-#: Extra colour references a spectral run writes unless told otherwise: the secondaries.
-DEFAULT_COLOURS: dict[str, tuple[float, float, float]] = {
-    "cyan": (0.0, 1.0, 1.0),
-    "magenta": (1.0, 0.0, 1.0),
-    "yellow": (1.0, 1.0, 0.0),
-}
+__all__ = ["amounts_of", "simulate_spectral_run"]
 
 
 def amounts_of(colours: Mapping[str, tuple[int, int, int]]) -> dict[str, tuple[float, float, float]]:
@@ -99,7 +93,8 @@ def simulate_spectral_run(
     lens : {"none", "long", "short"}
         The optics the target (and the monitor's references) is photographed through (:data:`LENSES`).
     colours : mapping of str to 3 amounts, optional
-        Extra ``colour_<name>`` references; default :data:`DEFAULT_COLOURS`. Empty for none.
+        Extra ``colour_<name>`` references; default the secondaries
+        (:data:`picamcal.simulate.spectral_scenes.SECONDARY_COLOURS`). Empty for none.
     seed, noise, bin_size, fmt, overwrite
         As :func:`picamcal.simulate.simulate_run`.
 
@@ -131,7 +126,7 @@ def simulate_spectral_run(
     if fmt not in RAW_WRITERS or fmt == "brcm":
         raise PicamcalError(f"a spectral run writes dng, npy or npz, not {fmt!r}")
     check_seed(seed)
-    extra = dict(DEFAULT_COLOURS if colours is None else colours)
+    extra = dict(SECONDARY_COLOURS if colours is None else colours)
     for name, amounts in extra.items():
         colour_amounts(f"colour_{name}", amounts)
     white = target_white(target)
@@ -145,15 +140,7 @@ def simulate_spectral_run(
     if in_situ:
         paths["in_situ_white"] = out / "in_situ" / f"white{suffix}"
     paths.update(layout=out / "layout.json", truth_npz=out / "truth.npz", truth_json=out / "truth.json")
-    existing = [path for path in paths.values() if path.exists() or path.is_symlink()]
-    if existing and not overwrite:
-        raise OutputError("exists already (use --overwrite to replace it)", existing[0])
-    if existing and not _is_simulated_run(paths["truth_json"]):
-        raise OutputError(
-            "exists and the folder is not a simulated run (it has no truth.json of one): --overwrite replaces only "
-            "what picamcal simulated; choose another output folder",
-            existing[0],
-        )
+    check_run_outputs(paths, overwrite)
     try:
         paths["layout"].parent.mkdir(parents=True, exist_ok=True)
         if in_situ:

@@ -45,6 +45,7 @@ from .spectral import SpectralCamera, expected_spectral_response, render_spectra
 
 __all__ = [
     "PRINT_SHEETS",
+    "SECONDARY_COLOURS",
     "SOURCES",
     "TARGETS",
     "LightSource",
@@ -59,6 +60,14 @@ __all__ = [
     "target_scene",
     "target_white",
 ]
+
+#: The secondaries as amounts of a source's primaries: the extra ``colour_<name>`` references a spectral run
+#: writes unless told otherwise, and those of the accuracy table's ``-extras`` workflows.
+SECONDARY_COLOURS: dict[str, tuple[float, float, float]] = {
+    "cyan": (0.0, 1.0, 1.0),
+    "magenta": (1.0, 0.0, 1.0),
+    "yellow": (1.0, 1.0, 0.0),
+}
 
 #: Physical forms of the colour-wheel target.
 TARGETS = ("monitor", "print", "led")
