@@ -72,6 +72,7 @@ def bad(folder: Path, *args: str) -> tuple:
         (("--colour", "AMBER"), ("--colour", "'AMBER': name the colour, NAME=FILE")),
     ],
 )
+@pytest.mark.slow
 def test_bad_options_are_refused(folder, args, fragments):
     result, out = bad(folder, *args)
     assert_bad_input(result, *fragments)
@@ -85,6 +86,7 @@ def test_two_references_of_one_name_are_refused(folder):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_an_extra_that_repeats_another_colour_is_refused_naming_it(folder):
     amber = str(folder / "amber.dng")
     result, out = bad(folder, "--colour", f"amber={amber}", "--colour", f"orange={amber}")  # one file, two names
@@ -92,6 +94,7 @@ def test_an_extra_that_repeats_another_colour_is_refused_naming_it(folder):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_an_extra_of_another_size_is_refused_naming_it(folder):
     result, out = bad(folder, "--colour", str(folder / "colour_small.dng"))  # the name from the file: small
     assert_bad_input(result, "colour_small.dng", "size 128x96 differs from the white reference's 160x120")

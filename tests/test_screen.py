@@ -122,6 +122,7 @@ def test_a_bad_colour_is_refused_and_the_screen_keeps_its_colour(xvfb):
         screen.close()
 
 
+@pytest.mark.slow
 def test_a_display_of_fewer_bits_warns_that_it_rounds_the_colours(xvfb):
     server, display = start_xvfb(depth=16)
     # In a process of its own: Tk keeps its connection to a display after the window closes, and a server that then

@@ -302,6 +302,7 @@ def test_simulate_spectral_refuses_bad_options_in_one_line(tmp_path, capsys, arg
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 def test_the_simulator_page_examples_run(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     text = (Path(__file__).resolve().parents[1] / "docs" / "simulator.md").read_text()
