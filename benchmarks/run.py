@@ -1,6 +1,12 @@
 """picamcal benchmarks: one command, every figure against a baseline measured in the same run.
 
-Usage: python3 benchmarks/run.py [--sensor imx219] [--repeats 5]
+Usage: python3 benchmarks/run.py [--sensor imx219] [--repeats 5] [--only NAME ...] [--readme]
+
+It times calibration, raw reading, the matrix inversion and the wheel search itself, then runs the other
+benchmarks of this folder one after the other: start-up (bench_startup), correction (bench_correct), batches
+file to file (bench_batch) and live unmixing (bench_live); `--only calibration startup ...` picks some. With
+`--readme` it also writes everything it printed into the README, between the markers of its "Benchmarks" section,
+so that the README's figures are those of one run. The whole run takes about 12 minutes on a 2-core machine.
 
 These machines are shared and noisy, so each figure is the median of several runs and is printed
 beside a baseline timed in the same process (absolute times drift from run to run; ratios less so).
@@ -121,11 +127,7 @@ def print_table(title: str, rows: list[tuple[str, float, str]]) -> None:
         print(f"  {name:{width}}  {1000 * seconds:9.1f}  {ratio}")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sensor", default="imx219")
-    parser.add_argument("--repeats", type=int, default=5)
-    args = parser.parse_args()
+def calibration_benchmarks(args: argparse.Namespace) -> None:
     with tempfile.TemporaryDirectory() as folder:
         calibration = bench_calibration(args.sensor, args.repeats, Path(folder))
         reading = bench_reading(args.sensor, args.repeats, Path(folder))
@@ -152,6 +154,57 @@ def main() -> None:
         f"  read a BRCM file or packed buffer in under 150 ms: {1000 * slowest_read:.0f} ms, "
         f"{'met' if slowest_read < 0.15 else 'MISSED'}"
     )
+
+
+#: The other benchmarks of this folder, in the order they run: name -> module (each has ``main(argv)``).
+SUITES = {"startup": "bench_startup", "correct": "bench_correct", "batch": "bench_batch", "live": "bench_live"}
+README = Path(__file__).resolve().parents[1] / "README.md"
+START, END = "<!-- benchmarks/run.py --readme: start -->", "<!-- benchmarks/run.py --readme: end -->"
+
+
+def write_readme(text: str) -> None:
+    """Put ``text`` (what this run printed) between the README's markers."""
+    page = README.read_text()
+    head, _, rest = page.partition(START)
+    _, _, tail = rest.partition(END)
+    if not rest or not tail:
+        raise SystemExit(f"{README}: the markers {START} and {END} are missing")
+    README.write_text(f"{head}{START}\n```text\n{text.strip()}\n```\n{END}{tail}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    import contextlib
+    import importlib
+    import io
+    import sys
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sensor", default="imx219")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--only", nargs="+", choices=["calibration", *SUITES], help="run only these")
+    parser.add_argument("--readme", action="store_true", help="write the printed figures into README.md")
+    args = parser.parse_args(argv)
+    chosen = args.only or ["calibration", *SUITES]
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    printed = io.StringIO()
+
+    class Tee(io.TextIOBase):
+        def write(self, text: str) -> int:
+            printed.write(text)
+            return sys.__stdout__.write(text)
+
+        def flush(self) -> None:
+            sys.__stdout__.flush()
+
+    with contextlib.redirect_stdout(Tee()):
+        for name in chosen:
+            print(f"\n===== {name} =====")
+            if name == "calibration":
+                calibration_benchmarks(args)
+            else:
+                importlib.import_module(SUITES[name]).main([])
+    if args.readme:
+        write_readme(printed.getvalue())
 
 
 if __name__ == "__main__":

@@ -239,7 +239,7 @@ EDITORS = {
 def test_raw_editors_render_the_white_neutral_and_the_colour_right(tmp_path, white, colour_raw, editor):
     # The editors a user opens the DNG in, with their default processing (as-shot white balance, the DNG's
     # matrices, their own tone curves), to sRGB: the white neutral within 3 % (measured < 1 %) and the known
-    # colour's R/G and B/G within 3 % (measured < 1.5 %). Not installed by .ci/run (Debian: darktable, rawtherapee).
+    # colour's R/G and B/G within 3 % (measured < 1.5 %). .ci/run installs both (Debian: darktable, rawtherapee).
     if shutil.which(editor) is None:
         pytest.skip(f"needs {editor} (Debian: {editor.removesuffix('-cli')})")
     raw, target = colour_raw

@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._binning import site_sums
-from .raw.model import site_channels
-
 
 def bin_edges(n_pixels: int, bin_size: int) -> np.ndarray:
     """Start index (in sensor pixels) of each bin along an axis, plus the end; the last bin may be partial.
@@ -132,6 +129,8 @@ def bin_sites(mosaic: np.ndarray, bin_size: int) -> np.ndarray:
     height, width = mosaic.shape
     nby, nbx = -(-height // bin_size), -(-width // bin_size)
     if mosaic.dtype in (np.uint16, np.float32, np.float64):
+        from ._binning import site_sums  # imports numba (0.3 s): only when binning
+
         sums = site_sums(mosaic, bin_size, nby, nbx)
         if sums is not None:
             rows = np.diff(np.append(np.arange(0, height, bin_size), height)) // 2
@@ -149,6 +148,9 @@ def sites_to_channels(sites: np.ndarray, pattern: str) -> np.ndarray:
     >>> sites_to_channels(np.array([1.0, 2.0, 4.0, 3.0]), "RGGB").tolist()
     [1.0, 3.0, 3.0]
     """
+    # Imported here: picamcal.raw's own modules use bayer, and importing raw.model first runs all of raw.
+    from .raw.model import site_channels
+
     idx = site_channels(pattern)
     out = np.zeros((*sites.shape[:-1], 3), dtype=np.result_type(sites.dtype, np.float32))
     counts = np.bincount(idx, minlength=3)

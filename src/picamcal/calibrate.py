@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from ._version import __version__
 from .bayer import bin_sites, centre_region, sites_to_channels
@@ -304,6 +303,8 @@ def _fill_ill_conditioned(fields: list[np.ndarray], bad: np.ndarray) -> None:
     """Replace the values of bad bins by those of the nearest good bin, in place."""
     if not bad.any():
         return
+    from scipy import ndimage  # here: its import takes 0.2 s, and most calibrations need none
+
     _, (iy, ix) = ndimage.distance_transform_edt(bad, return_indices=True)
     for f in fields:
         f[bad] = f[iy[bad], ix[bad]]
@@ -659,6 +660,8 @@ def _binned_responses(
         )
     site_responses = np.stack([ref.sites - below for ref, below in zip(lights, black_sites, strict=True)])
     if smoothing > 0:
+        from scipy import ndimage
+
         site_responses = ndimage.gaussian_filter(site_responses, sigma=(0, smoothing, smoothing, 0), mode="nearest")
     if np.any(site_responses[0] <= 0):
         raise CalibrationInputError(

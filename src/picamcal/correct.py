@@ -21,12 +21,21 @@ import dataclasses
 import functools
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from .bayer import bin_centres, bin_sites, block_mean, centre_region, sites_to_channels
 from .calibration import Calibration
 from .errors import PicamcalError
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
-from .kernels import CorrectionFields, correct_numba, correct_numpy, make_taps, numba_available, output_array
+from .kernels import (
+    CorrectionFields,
+    correct_numba,
+    correct_numpy,
+    encode_codes,
+    make_taps,
+    numba_available,
+    output_array,
+)
 from .modes import Mode
 from .raw.model import RawImage, require_black_level, site_channels
 from .raw.processed import ProcessedImage
@@ -37,6 +46,9 @@ _ROW_BLOCK = 256
 ENGINES = ("auto", "numba", "numpy", "reference")
 #: How many (calibration, mode, size) correction fields :func:`correct` keeps.
 _FIELDS_CACHE_SIZE = 4
+#: uint16 code of the white reference (value 1.0) in :func:`correct`'s ``dtype=np.uint16`` output and the
+#: ``uint16-tiff`` files: a power of two, so code / 32768 is exact and values up to twice the white keep headroom.
+UINT16_WHITE = 32768
 
 
 def _site_gain_mosaic(calibration: Calibration, mode: Mode, height: int, width: int) -> np.ndarray:
@@ -102,7 +114,8 @@ def correction_fields(calibration: Calibration, mode: str | Mode, height: int, w
     """The coarse fields of a correction mode in local spline form, for the kernels of :mod:`picamcal.kernels`.
 
     Solves for the B-spline coefficients of the per-site white and of the matrix field on the bin
-    grid and tabulates each row's and column's 4 taps (tens of milliseconds at 12 megapixels, so
+    grid, evaluates the white's along x at each of its site's columns, and tabulates each row's and
+    column's 4 taps (tens of milliseconds at 12 megapixels, so
     :func:`correct` keeps the last few). The interpolant is that of :func:`interpolation_matrix`,
     so the result matches ``engine="reference"`` up to rounding.
 
@@ -111,25 +124,16 @@ def correction_fields(calibration: Calibration, mode: str | Mode, height: int, w
     >>> from picamcal.simulate import make_camera, simulate_references
     >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
     >>> fields = correction_fields(cal, "centre", cal.height, cal.width)
-    >>> fields.matrices.shape, fields.white.shape  # 9 elements and 4 sites on the 15 x 20 bins' spline
-    ((9, 15, 20), (4, 15, 20))
+    >>> fields.matrices.shape  # 9 elements on the 15 x 20 bins' spline
+    (9, 15, 20)
+    >>> fields.white.shape  # 4 sites, the 15 coefficient rows evaluated at each site's 160 columns
+    (4, 15, 160)
     """
     mode = calibration.check_mode(mode)
     size = calibration.bin_size
-    white_cols = [_taps(bin_centres(width, size, sx), np.arange(sx, width, 2)) for sx in (0, 1)]
     white = None
     if mode is not Mode.UNCORRECTED:
-        white = np.stack(
-            [
-                spline_coefficients(
-                    calibration.site_white[..., site],
-                    bin_centres(height, size, site // 2),
-                    bin_centres(width, size, site % 2),
-                )
-                for site in range(4)
-            ]
-        )
-        white = np.ascontiguousarray(white, dtype=np.float32)
+        white = np.stack([_white_along_x(calibration, site, height, width) for site in range(4)])
     centres_y, centres_x = bin_centres(height, size), bin_centres(width, size)
     matrices = calibration.matrices(mode)
     if matrices is not None:
@@ -141,11 +145,25 @@ def correction_fields(calibration: Calibration, mode: str | Mode, height: int, w
         site_gains=(1.0 / calibration.centre_white).astype(np.float32),
         white=white,
         white_rows=make_taps(*_site_taps(height, size)),
-        white_cols=make_taps(*(np.stack(parts) for parts in zip(*white_cols, strict=True))),
         matrices=matrices,
         matrix_rows=make_taps(*_taps(centres_y, np.arange(height))),
         matrix_cols=make_taps(*_taps(centres_x, np.arange(width))),
     )
+
+
+def _white_along_x(calibration: Calibration, site: int, height: int, width: int) -> np.ndarray:
+    """A site's white B-spline coefficients evaluated at each of its columns: (ncy, W // 2) float32.
+
+    Evaluated in float64 and rounded once; a row of the white is then 4 multiply-adds per pixel on long rows.
+    """
+    size = calibration.bin_size
+    sy, sx = divmod(site, 2)
+    coefficients = spline_coefficients(
+        calibration.site_white[..., site], bin_centres(height, size, sy), bin_centres(width, size, sx)
+    )
+    first, weights = _taps(bin_centres(width, size, sx), np.arange(sx, width, 2))
+    along_x = sum(weights[:, b] * coefficients[:, first + b] for b in range(4))
+    return np.ascontiguousarray(along_x, dtype=np.float32)
 
 
 @functools.lru_cache(maxsize=_FIELDS_CACHE_SIZE)
@@ -195,6 +213,7 @@ def correct(
     *,
     engine: str = "auto",
     out: np.ndarray | None = None,
+    dtype: DTypeLike = np.float32,
 ) -> np.ndarray:
     """Correct a raw image's vignetting and colour crosstalk.
 
@@ -215,15 +234,26 @@ def correct(
     engine : {"auto", "numba", "numpy", "reference"}
         How to compute the full-resolution image (see the module docstring): ``auto`` is ``numba``
         when numba is installed and ``numpy`` otherwise. Ignored when ``binned``.
-    out : ndarray of float32, shape (H, W, 3), optional
-        Write the full-resolution result here (C-contiguous) instead of into a new array: when
-        correcting many frames, reusing one buffer saves the cost of touching fresh memory (about
-        a fifth of the time of a 12-megapixel frame with the numba kernel). Not with ``binned``.
+    out : ndarray, optional
+        Write the full-resolution result here (C-contiguous, of the returned shape and type) instead of
+        into a new array: when correcting many frames, reusing one buffer saves the cost of touching fresh
+        memory (about a fifth of the time of a 12-megapixel frame with the numba kernel). Not with ``binned``.
+    dtype : {np.float32, np.uint16}
+        ``np.uint16`` returns the ``uint16-tiff`` codes instead, planar (3, H, W): ``round(value *``
+        :data:`UINT16_WHITE` ``)`` clipped to 0..65535, NaN as 0, bit for bit those of
+        :func:`picamcal.output.tiff.encode_uint16` of the float32 result, but computed row by row with no
+        float32 image at full resolution (half the memory). Not with ``binned``.
 
     Returns
     -------
-    ndarray of float32, shape (H, W, 3) or (nby, nbx, 3)
-        Linear RGB in which the calibration's white reference is 1.0 (``flat``, ``centre`` and ``pure``).
+    ndarray of float32, shape (H, W, 3) or (nby, nbx, 3); or of uint16, shape (3, H, W)
+        Linear RGB in which the calibration's white reference is 1.0 (``flat``, ``centre`` and ``pure``),
+        or its uint16 codes.
+
+    Raises
+    ------
+    OutputError
+        ``out`` is not an array of the result's shape and type.
 
     Examples
     --------
@@ -237,16 +267,22 @@ def correct(
     >>> same = picamcal.correct(target, cal, engine="numpy", out=rgb)  # into the same buffer
     >>> same is rgb, picamcal.correct(target, cal, "flat", binned=True).shape
     (True, (15, 20, 3))
+    >>> codes = picamcal.correct(target, cal, dtype=np.uint16)  # uint16-tiff codes, the white at 32768
+    >>> codes.shape, codes.dtype
+    ((3, 240, 320), dtype('uint16'))
     """
     mode = calibration.check_mode(mode)
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENGINES)}")
+    to_codes = np.dtype(dtype) == np.uint16
+    if not to_codes and np.dtype(dtype) != np.float32:
+        raise ValueError(f"dtype must be numpy.float32 or numpy.uint16, not {np.dtype(dtype)}")
     calibration.check_compatible(raw)
     matrices = calibration.matrices(mode)
     raw = with_known_black_level(raw, calibration)
     if binned:
-        if out is not None:
-            raise ValueError("out takes a full-resolution image; binned=True returns a new array")
+        if out is not None or to_codes:
+            raise ValueError("out and dtype take a full-resolution image; binned=True returns a new float32 array")
         sites = bin_sites(raw.black_subtracted(), calibration.bin_size)
         white = (
             np.broadcast_to(calibration.centre_white, sites.shape)
@@ -259,6 +295,8 @@ def correct(
         return rgb.astype(np.float32)
     if engine == "reference":
         rgb = _correct_reference(raw, calibration, mode)
+        if to_codes:
+            return encode_codes(rgb, UINT16_WHITE, output_array(out, raw.height, raw.width, np.uint16))
         if out is None:
             return rgb
         np.copyto(output_array(out, raw.height, raw.width), rgb)
@@ -266,9 +304,15 @@ def correct(
     fields = _cached_fields(calibration, mode, raw.height, raw.width)._replace(
         black=np.asarray(raw.black_level, dtype=np.float32)
     )
+    scale = UINT16_WHITE if to_codes else None
     if engine == "numba" or (engine == "auto" and numba_available()):
-        return correct_numba(raw.bayer, fields, out)
-    return correct_numpy(raw.bayer, fields, out)
+        try:
+            return correct_numba(raw.bayer, fields, out, code_scale=scale)
+        except ImportError:
+            if engine == "numba":
+                raise
+            # numba is installed but does not import (built for another numpy): numpy's path gives the same.
+    return correct_numpy(raw.bayer, fields, out, code_scale=scale)
 
 
 def _correct_reference(raw: RawImage, calibration: Calibration, mode: Mode) -> np.ndarray:

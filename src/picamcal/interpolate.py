@@ -16,7 +16,6 @@ the correction kernels interpolate on the fly without a full-resolution field.
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicSpline, make_interp_spline
 
 #: Degree of the splines.
 _K = 3
@@ -49,6 +48,9 @@ def interpolation_matrix(centres: np.ndarray, positions: np.ndarray) -> np.ndarr
     n = centres.size
     if n == 1:
         return np.ones((positions.size, 1))
+    # scipy.interpolate is imported where a spline is made (0.15 s), not by every module that imports this one.
+    from scipy.interpolate import CubicSpline
+
     spline = CubicSpline(centres, np.eye(n), axis=0, bc_type="not-a-knot" if n > 3 else "natural")
     return spline(positions)
 
@@ -82,6 +84,8 @@ def _spline(centres: np.ndarray, values: np.ndarray, axis: int) -> tuple[np.ndar
         knots = np.repeat([centres[0] - _WIDE, centres[0] + _WIDE], _K + 1)
         return knots, np.repeat(values, _K + 1, axis=axis)
     bc = "not-a-knot" if centres.size > 3 else "natural"
+    from scipy.interpolate import make_interp_spline
+
     spline = make_interp_spline(centres, values, k=_K, bc_type=bc, axis=axis)
     return spline.t, np.moveaxis(spline.c, 0, axis)
 

@@ -14,17 +14,15 @@ perceptual scale, which is all a comparison between them needs.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import colour
 import numpy as np
-from colour.utilities import domain_range_scale
 from numpy.typing import ArrayLike
-from PIL import Image
 
 from .._atomic import atomic_path
 from ..bayer import block_mean
@@ -43,10 +41,19 @@ __all__ = [
     "wheel_figures",
 ]
 
-_SRGB = colour.RGB_COLOURSPACES["sRGB"]
-# The white point of L*a*b* is the XYZ of RGB (1, 1, 1) through the sRGB matrix of IEC 61966-2-1, whose
-# chromaticity differs from the tabulated D65 by 2e-5; using it makes the calibration's white exactly neutral.
-_WHITE_XY = colour.XYZ_to_xy(_SRGB.matrix_RGB_to_XYZ @ np.ones(3))
+
+@functools.cache
+def _srgb() -> tuple[Any, np.ndarray]:
+    """colour-science's sRGB space and the white point of L*a*b*, made when first needed: importing colour-science
+    takes a second (it imports matplotlib and much of scipy), which a command that measures no colour should not pay.
+
+    The white point is the XYZ of RGB (1, 1, 1) through the sRGB matrix of IEC 61966-2-1, whose chromaticity
+    differs from the tabulated D65 by 2e-5; using it makes the calibration's white exactly neutral.
+    """
+    import colour
+
+    space = colour.RGB_COLOURSPACES["sRGB"]
+    return space, colour.XYZ_to_xy(space.matrix_RGB_to_XYZ @ np.ones(3))
 
 
 def linear_to_lab(rgb: ArrayLike) -> np.ndarray:
@@ -73,10 +80,14 @@ def linear_to_lab(rgb: ArrayLike) -> np.ndarray:
     >>> round(float(linear_to_lab([0.18, 0.18, 0.18])[0]), 2)
     49.5
     """
+    import colour
+    from colour.utilities import domain_range_scale
+
     rgb = _as_colours(rgb, "rgb")
+    space, white_xy = _srgb()
     with domain_range_scale("reference"):
-        xyz = colour.RGB_to_XYZ(rgb, _SRGB)
-        return np.asarray(colour.XYZ_to_Lab(xyz, _WHITE_XY), dtype=np.float64)
+        xyz = colour.RGB_to_XYZ(rgb, space)
+        return np.asarray(colour.XYZ_to_Lab(xyz, white_xy), dtype=np.float64)
 
 
 def delta_e2000_lab(lab_a: ArrayLike, lab_b: ArrayLike) -> np.ndarray:
@@ -99,6 +110,9 @@ def delta_e2000_lab(lab_a: ArrayLike, lab_b: ArrayLike) -> np.ndarray:
     >>> round(float(delta_e2000_lab([50.0, 2.6772, -79.7751], [50.0, 0.0, -82.7485])), 4)
     2.0425
     """
+    import colour
+    from colour.utilities import domain_range_scale
+
     lab_a = _as_colours(lab_a, "lab_a")
     lab_b = _as_colours(lab_b, "lab_b")
     with domain_range_scale("reference"):
@@ -421,9 +435,11 @@ def encode_srgb(linear: ArrayLike, *, exposure: float = 1.0) -> np.ndarray:
     [0, 10, 118, 255, 255]
     """
     scaled = np.nan_to_num(np.asarray(linear, dtype=np.float64) * exposure, nan=0.0, posinf=1.0, neginf=0.0)
-    with domain_range_scale("reference"):
-        encoded = colour.cctf_encoding(np.clip(scaled, 0.0, 1.0), function="sRGB")
-    return np.rint(np.asarray(encoded) * 255.0).astype(np.uint8)
+    scaled = np.clip(scaled, 0.0, 1.0)
+    # The transfer function of IEC 61966-2-1 as colour-science writes it (colour.cctf_encoding, function="sRGB"),
+    # operation for operation, so the codes are the same; without importing colour-science (1 s) to draw a target.
+    encoded = np.where(scaled <= 0.0031308, scaled * 12.92, 1.055 * scaled ** (1 / 2.4) - 0.055)
+    return np.rint(encoded * 255.0).astype(np.uint8)
 
 
 def save_preview(
@@ -457,9 +473,12 @@ def save_preview(
 
     Examples
     --------
+    >>> from PIL import Image
     >>> Image.open(save_preview("preview.png", np.ones((300, 200, 3)), max_size=100)).size
     (67, 100)
     """
+    from PIL import Image
+
     values = np.asarray(linear, dtype=np.float64)
     if values.ndim != 3 or values.shape[2] != 3 or values.size == 0:
         raise PicamcalError(f"expected an (h, w, 3) RGB image, got an array of shape {values.shape}")

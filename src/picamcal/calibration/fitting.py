@@ -17,7 +17,6 @@ Matrices act on column vectors (``out = U @ rgb``), rows are output channels, as
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from ..errors import CalibrationInputError
 
@@ -221,6 +220,8 @@ def limit_noise_penalty(
     needed = np.clip(np.where(c > 0, root, 0.0), 0.0, 1.0).max(axis=-1)
     if not needed.any():
         return unmixing.astype(np.float64), needed
+    from scipy import ndimage  # here, not for every load of a calibration
+
     widened = ndimage.maximum_filter(needed, size=3, mode="nearest")
     widened = ndimage.gaussian_filter(widened, 1.0, mode="nearest", truncate=2.0)
     blend = np.clip(np.maximum(needed, widened), 0.0, 1.0)

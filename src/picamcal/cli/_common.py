@@ -7,34 +7,57 @@ work).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
+from typer.core import TyperGroup
 
 from .._atomic import refuse_foreign, refuse_inputs_as_output
 from .._version import __version__
 from ..errors import OutputError, PicamcalError, closest
 from ..modes import MODE_NAMES, Mode, parse_mode
 
+if TYPE_CHECKING:  # rich is imported when a command prints, not for --help
+    from rich.console import Console
+    from rich.progress import Progress
+
+
+class _Group(TyperGroup):
+    """``picamcal``: its help lists each command with the whole first paragraph of its help, wrapped."""
+
+    def get_help_option(self, ctx: Any) -> Any:
+        """``--help``, false when not given: typer leaves it None, and checks a value that is not a bool with
+        pydantic, whose import (0.1 s) would make ``picamcal COMMAND --help`` take half as long again."""
+        option = super().get_help_option(ctx)
+        if option is not None:
+            option.default = False
+        return option
+
+    def format_commands(self, ctx: Any, formatter: Any) -> None:
+        rows = []
+        for name in self.list_commands(ctx):
+            command = self.get_command(ctx, name)
+            if command is not None and not command.hidden:
+                rows.append((name, " ".join((command.help or "").split("\n\n")[0].split())))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+# Plain help (click's), not rich's: typer's rich help imports markdown and syntax highlighting, which doubled the time
+# every --help took; the content is the same, with paragraphs wrapped to the terminal.
 app = typer.Typer(
+    cls=_Group,
     help="Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    rich_markup_mode=None,
 )
-console = Console(stderr=True)
 MODE_HELP = "; ".join(f"{mode.value}: {mode.description}" for mode in Mode)
 PatternOption = Annotated[
     str | None, typer.Option("--pattern", help="Override the files' Bayer order (RGGB, GBRG, BGGR, GRBG).")
@@ -188,11 +211,28 @@ def reader(pattern: str | None, black_level: str | None, **headless: Any) -> Cal
     return read
 
 
+@functools.cache
+def console() -> Console:
+    """Standard error, where the commands say what they do and did."""
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
 def progress_bar(rate: bool = False) -> Progress:
     """A bar on stderr for a known number of steps; none off a terminal.
 
     With ``rate``, a task's field ``rate`` (text such as "3.1 files/s") and the time remaining are shown too.
     """
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn()]
     if rate:
         columns += [TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn()]
@@ -200,9 +240,9 @@ def progress_bar(rate: bool = False) -> Progress:
         columns.append(TimeElapsedColumn())
     return Progress(
         *columns,
-        console=console,
+        console=console(),
         transient=True,
-        disable=not console.is_terminal,  # off a terminal, rich would leave an empty line on stderr
+        disable=not console().is_terminal,  # off a terminal, rich would leave an empty line on stderr
     )
 
 
@@ -214,9 +254,11 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
+    # False, not None: typer checks a value that is not a bool with pydantic, whose import would double the time
+    # of every command's --help.
     version: Annotated[
-        bool | None, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")
-    ] = None,
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")
+    ] = False,
 ) -> None:
     """Flat-field and colour-crosstalk calibration for Raspberry Pi cameras behind custom optics."""
 
@@ -270,8 +312,10 @@ def parse_numbers(text: str | None, count: int, option: str) -> tuple[float, ...
 
 def stdout_console() -> Console:
     """Standard output; not squeezed to 80 columns when it is a file or a pipe."""
-    console = Console()
-    return console if console.is_terminal else Console(width=200)
+    from rich.console import Console
+
+    stdout = Console()
+    return stdout if stdout.is_terminal else Console(width=200)
 
 
 def check_output(

@@ -118,9 +118,10 @@ def _spread_role_options(args: list[str]) -> list[str]:
     """``calibrate --white a.dng b.dng`` as ``--white a.dng --white b.dng``: several frames per reference role.
 
     Click options take one value each; the values after a role option that name existing files (not folders,
-    not options) are taken as more frames of that role.
+    not options) are taken as more frames of that role. ``--help`` shows the help whatever else is given, so it is
+    shown without reading the roles (whose module imports numpy).
     """
-    if "calibrate" not in args[:1]:
+    if "calibrate" not in args[:1] or "--help" in args:
         return args
     from ..references import ROLES
 
@@ -157,6 +158,9 @@ def main(argv: list[str] | None = None) -> None:
             code = app(args=args, prog_name="picamcal", standalone_mode=False)
         except click.UsageError as exc:
             command = exc.ctx.command_path if exc.ctx is not None else "picamcal"
+            if not args:  # no command given: the error carries the help (click's NoArgsIsHelpError); show it first
+                print(exc.format_message())
+                held.fail(f"give a command (see {command} --help)")
             held.fail(f"{exc.format_message().rstrip('.')} (see {command} --help)")
         except click.ClickException as exc:
             held.fail(exc.format_message())

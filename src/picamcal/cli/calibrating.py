@@ -1,6 +1,7 @@
 """The commands that make and apply a calibration: ``calibrate`` and ``correct``."""
 
-from __future__ import annotations
+# Annotations are not postponed (no `from __future__ import annotations`): typer reads every command's on each run,
+# and would evaluate them from strings each time.
 
 import os
 import time
@@ -124,7 +125,7 @@ def calibrate_cmd(
         ref = refs[role]
         return (read(path) for path in ref) if isinstance(ref, list) else read(ref)
 
-    with console.status("calibrating"):
+    with console().status("calibrating"):
         if unmixing_from is not None:
             black_frames = frames("black") if "black" in refs else None
             cal = calibrate_in_situ(frames("white"), unmixing_from, black_frames, smoothing=smoothing)
@@ -165,7 +166,7 @@ def calibrate_cmd(
     lines += [f"{c.name}: {c.summary}" for c in checks if c.name == "noise_limit" and c.verdict == "pass"]
     lines += [f"needs a look: {check.name}: {check.summary}" for check in checks if check.verdict == "warn"]
     for line in lines:
-        console.print(line, markup=False, soft_wrap=True)
+        console().print(line, markup=False, soft_wrap=True)
 
 
 @app.command("correct")
@@ -290,7 +291,7 @@ def correct_cmd(
         progress.stop()
     elapsed = time.monotonic() - bar["start"] if bar else 0.0
     rate = f" ({len(result.done) / elapsed:.1f} files/s)" if result.done and elapsed > 0 else ""
-    console.print(
+    console().print(
         f"wrote {len(result.done)} image(s) to {zarr_path or out}{rate}; skipped {len(result.skipped)} "
         f"(done already); failed {len(result.failed)}",
         markup=False,
@@ -298,7 +299,7 @@ def correct_cmd(
         soft_wrap=True,
     )
     for path, reason in result.failed:
-        console.print(f"picamcal: failed: {path}: {reason}", markup=False, highlight=False, soft_wrap=True)
+        console().print(f"picamcal: failed: {path}: {reason}", markup=False, highlight=False, soft_wrap=True)
     if result.failed:
         raise typer.Exit(1)
 

@@ -1,14 +1,14 @@
 """The commands that show how good a calibration is: ``target`` (the colour-wheel test target), ``analyse``
 (its images) and ``report``."""
 
-from __future__ import annotations
+# Annotations are not postponed (no `from __future__ import annotations`): typer reads every command's on each run,
+# and would evaluate them from strings each time.
 
 import json
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from .._atomic import atomic_path, refuse_inputs_as_output
 from ..errors import OutputError, PicamcalError
@@ -71,11 +71,11 @@ def target_cmd(
     if screens:  # first: save_screens refuses every existing screen before it writes any
         folder = out.parent if target else out
         paths = save_screens(folder, width, height, colours, overwrite=overwrite)
-        console.print(f"wrote {len(paths)} full-screen references to {folder}: {', '.join(p.name for p in paths)}")
-        console.print("show each full-screen, unscaled, with the monitor's brightness fixed and auto-dimming off")
+        console().print(f"wrote {len(paths)} full-screen references to {folder}: {', '.join(p.name for p in paths)}")
+        console().print("show each full-screen, unscaled, with the monitor's brightness fixed and auto-dimming off")
     if target:
         image, layout = save_target(out, width, height, overwrite=overwrite)
-        console.print(f"wrote {image} and its layout {layout}")
+        console().print(f"wrote {image} and its layout {layout}")
 
 
 @app.command("analyse")
@@ -92,6 +92,8 @@ def analyse_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace existing outputs.")] = False,
 ) -> None:
     """Find the colour wheels, compare each with the centre wheel (CIEDE2000, hue, saturation), draw polar plots."""
+    from rich.table import Table
+
     from ..analysis.images import images_by_mode
     from ..analysis.wheels import analyse, find_wheels, polar_plot, read_layout
     from ..calibration import load_calibration
@@ -170,7 +172,7 @@ def report_cmd(
 
     cal = load_calibration(calibration)
     target_layout = read_layout(layout) if layout is not None else None
-    with console.status("writing the report") as status:
+    with console().status("writing the report") as status:
         index = write_report(
             cal,
             out,
@@ -180,4 +182,4 @@ def report_cmd(
             overwrite=overwrite,
             progress=lambda text: status.update(f"report: {text}"),
         )
-    console.print(f"wrote {index}")
+    console().print(f"wrote {index}")

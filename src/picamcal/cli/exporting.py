@@ -1,7 +1,8 @@
 """The commands that carry a calibration into the camera's own pipeline: ``export-tuning``, ``export-lst``, and
 ``apply-tuning``, which shows on a PC what a tuning file does to a raw image."""
 
-from __future__ import annotations
+# Annotations are not postponed (no `from __future__ import annotations`): typer reads every command's on each run,
+# and would evaluate them from strings each time.
 
 import math
 from pathlib import Path
@@ -116,7 +117,7 @@ def export_tuning_cmd(
             raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
     for path, tuning, base_path in zip(outputs, exported, bases, strict=True):
         save_tuning(path, tuning, overwrite=overwrite)
-        console.print(
+        console().print(
             f"wrote {path}: static lens shading for {tuning['target']} from {calibration.name} (base {base_path})",
             markup=False,
             highlight=False,
@@ -138,7 +139,7 @@ def export_lst_cmd(
 
     table = legacy_table(load_calibration(calibration))
     save_legacy_table(out, table, overwrite=overwrite)
-    console.print(f"wrote {out}: {table.shape} uint8, gains {table.min() / 32:.2f} to {table.max() / 32:.2f}")
+    console().print(f"wrote {out}: {table.shape} uint8, gains {table.min() / 32:.2f} to {table.max() / 32:.2f}")
 
 
 @app.command("apply-tuning")
@@ -207,4 +208,4 @@ def apply_tuning_cmd(
     applied = list(applied_colour_gains(raw, given_gains))
     info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm, "colour_gains": applied}
     write_rgb_tiff(out, rgb, info, overwrite=overwrite)
-    console.print(f"wrote {out}")
+    console().print(f"wrote {out}")

@@ -1,6 +1,7 @@
 """``inspect``: what each file is, and what looks wrong with it."""
 
-from __future__ import annotations
+# Annotations are not postponed (no `from __future__ import annotations`): typer reads every command's on each run,
+# and would evaluate them from strings each time.
 
 import json
 import math
@@ -9,8 +10,6 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.table import Table
-from rich.text import Text
 
 from ..errors import PicamcalError, PicamcalWarning
 from ._common import (
@@ -80,6 +79,9 @@ def _json_safe(value: Any) -> Any:
 
 
 def _print_inspection(records: list[dict[str, Any]]) -> None:
+    from rich.table import Table
+    from rich.text import Text
+
     table = Table()
     headings = ["file", "format", "sensor", "size", "pattern", "bits", "black", "white", "exposure", "gain"]
     frames = any("frames" in r for r in records)

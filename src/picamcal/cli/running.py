@@ -1,13 +1,13 @@
 """The commands that run the whole method: ``simulate`` (a camera without one), ``acquire`` (the rig) and
 ``demo``."""
 
-from __future__ import annotations
+# Annotations are not postponed (no `from __future__ import annotations`): typer reads every command's on each run,
+# and would evaluate them from strings each time.
 
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.table import Table
 
 from .._atomic import refuse_inputs_as_output
 from ._common import app, choice, console, in_range, parse_colour_options, parse_size, progress_bar, stdout_console
@@ -64,7 +64,7 @@ def simulate_cmd(
 
         if dust:
             raise typer.BadParameter("--dust is not simulated with --spectral")
-        with console.status(f"simulating {sensor} (spectral)"):
+        with console().status(f"simulating {sensor} (spectral)"):
             paths = simulate_spectral_run(
                 out,
                 sensor,
@@ -79,9 +79,9 @@ def simulate_cmd(
         given = [name for name, value in options.items() if value is not None]
         if given:
             raise typer.BadParameter(f"{given[0]} needs --spectral")
-        with console.status(f"simulating {sensor}"):
+        with console().status(f"simulating {sensor}"):
             paths = simulate_run(out, sensor, dust=dust, **common)
-    console.print(f"wrote {len(paths)} files to {out}")
+    console().print(f"wrote {len(paths)} files to {out}")
 
 
 @app.command("acquire")
@@ -133,17 +133,17 @@ def acquire_cmd(
 
     def show(message: str, done: int, total: int) -> None:
         # One line per step rather than a live bar, so it never draws over the prompts.
-        console.print(f"[{done}/{total}] {message}")
+        console().print(f"[{done}/{total}] {message}")
 
     with open_rig(
         camera, illuminator, sensor=sensor, size=parse_size(size), seed=seed, colours=colours, prompt=input
     ) as rig:
         light = rig.illuminator.describe()
         if light.get("shows") == "window":
-            console.print(f"showing the colours full-screen on the display {light['display']}")
+            console().print(f"showing the colours full-screen on the display {light['display']}")
         elif light.get("shows") == "prompt":
             why = f" ({light['why']})" if "why" in light else ""
-            console.print(f"you show the colours: picamcal target --screens writes the images{why}")
+            console().print(f"you show the colours: picamcal target --screens writes the images{why}")
         manifest = acquire(
             rig.camera,
             rig.illuminator,
@@ -156,7 +156,7 @@ def acquire_cmd(
             prompt=rig.prompt,
             progress=show,
         )
-    console.print(f"wrote {manifest}; calibrate with: picamcal calibrate {out}")
+    console().print(f"wrote {manifest}; calibrate with: picamcal calibrate {out}")
 
 
 @app.command("demo")
@@ -175,6 +175,8 @@ def demo_cmd(
     overwrite: Annotated[bool, typer.Option(help="Write into a folder that is not empty.")] = False,
 ) -> None:
     """Run the whole method on the simulated camera and print the figures before and after."""
+    from rich.table import Table
+
     from ..demo import STEPS, run_demo
     from ..simulate import RAW_WRITERS
 

@@ -4,7 +4,8 @@
     The values as they are (white reference 1.0), interleaved RGB; ``ImageDescription`` JSON
     ``{"picamcal": {...}}``.
 ``uint16-tiff``
-    Linear, ``code = round(value * UINT16_WHITE)``: the white reference at 32768, so that values up to
+    Linear, ``code = round(value * UINT16_WHITE)`` (:data:`picamcal.correct.UINT16_WHITE`; the codes
+    ``picamcal.correct(..., dtype=np.uint16)`` returns): the white reference at 32768, so that values up to
     twice the white keep their headroom (clipped at 0 and 65535). An ImageJ hyperstack (channels R, G, B,
     composite display, each channel's display range 0-32768) with ImageJ's calibration function set to
     ``value = code / 32768`` (unit "white"), so that Fiji opens it as three channels and measures in units
@@ -23,14 +24,14 @@ import numpy as np
 import tifffile
 
 from .._atomic import atomic_path
+from ..correct import UINT16_WHITE
+from ..kernels import encode_codes
 from .colour import check_rgb, strips
 from .provenance import SOFTWARE
 
 #: The TIFF formats (they take ``compression="zstd"``), and their file name suffix.
 TIFF_FORMATS = ("float32-tiff", "uint16-tiff")
 TIFF_SUFFIX = ".tiff"
-#: ``uint16-tiff`` code of the white reference (value 1.0): a power of two, so code / 32768 is exact.
-UINT16_WHITE = 32768
 
 
 def encode_uint16(rgb: np.ndarray) -> np.ndarray:
@@ -44,9 +45,13 @@ def encode_uint16(rgb: np.ndarray) -> np.ndarray:
     rgb = check_rgb(rgb)
     out = np.empty((3, *rgb.shape[:2]), dtype=np.uint16)
     for rows in strips(rgb.shape):
-        codes = np.clip(np.nan_to_num(rgb[rows].astype(float), nan=0.0) * UINT16_WHITE, 0, 65535)
-        out[:, rows] = np.moveaxis(np.rint(codes), -1, 0)
+        encode_codes(rgb[rows], UINT16_WHITE, out[:, rows])
     return out
+
+
+def _is_codes(image: np.ndarray) -> bool:
+    """Whether ``image`` is ``uint16-tiff`` codes, planar (3, H, W), rather than a corrected (H, W, 3) image."""
+    return image.dtype == np.uint16 and image.ndim == 3 and image.shape[0] == 3
 
 
 def write_tiff(
@@ -60,6 +65,8 @@ def write_tiff(
 ) -> Path:
     """Write a corrected image as one of the :data:`TIFF_FORMATS`, atomically (:func:`picamcal.output.write_corrected`).
 
+    ``rgb`` is the corrected (H, W, 3) image, or for ``uint16-tiff`` its codes already made, planar (3, H, W)
+    uint16 (``picamcal.correct(..., dtype=np.uint16)``, :func:`encode_uint16`), written as they are.
     ``metadata`` is written as given (``uint16-tiff`` adds its ``encoding`` and ``scale``); ``compression="zstd"``
     compresses losslessly with a predictor (needs imagecodecs).
 
@@ -68,10 +75,20 @@ def write_tiff(
     >>> path = write_tiff("white.tiff", np.ones((4, 6, 3), np.float32), "uint16-tiff", {"source": "white.dng"})
     >>> tifffile.imread(path).shape, int(tifffile.imread(path).max())
     ((3, 4, 6), 32768)
+    >>> codes = np.full((3, 4, 6), UINT16_WHITE, np.uint16)  # as picamcal.correct(..., dtype=np.uint16) gives
+    >>> path = write_tiff("codes.tiff", codes, "uint16-tiff", {"source": "white.dng"})
+    >>> bool(np.array_equal(tifffile.imread(path), codes))
+    True
     """
     if output_format not in TIFF_FORMATS:
         raise ValueError(f"{output_format!r} is not a TIFF format ({', '.join(TIFF_FORMATS)})")
-    rgb = check_rgb(rgb)
+    if _is_codes(np.asarray(rgb)):
+        if output_format != "uint16-tiff":
+            raise ValueError(f"uint16 codes (3, H, W) are written as uint16-tiff, not {output_format}")
+        codes = np.asarray(rgb)
+    else:
+        rgb = check_rgb(rgb)
+        codes = None
     path = Path(path)
     info = dict(metadata or {})
     predictor = True if compression else None
@@ -90,7 +107,8 @@ def write_tiff(
         return path
     info.update(encoding=f"linear: value = code / {UINT16_WHITE} (the white reference at {UINT16_WHITE})")
     info.update(scale=UINT16_WHITE)
-    codes = encode_uint16(rgb)
+    if codes is None:
+        codes = encode_uint16(rgb)
     with atomic_path(path, overwrite=overwrite) as tmp:
         tifffile.imwrite(
             tmp,

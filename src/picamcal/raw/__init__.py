@@ -18,7 +18,7 @@ from pathlib import Path
 from ..errors import PicamcalWarning, RawFormatError
 from ..sensors import find_sensor_name
 from .brcm import is_brcm, is_jpeg, read_brcm, write_brcm
-from .dng import is_dng, read_dng, write_dng
+from .dng import GainMap, flat_field_gain_map, is_dng, read_dng, read_gain_map, write_dng, write_linear_dng
 from .headless import HEADLESS_SUFFIXES, headless_hint, read_headless
 from .model import PATTERNS, RawImage, given_black_level, require_colour_sensor, sensor_black_level, site_channels
 from .npy import file_head, is_npy
@@ -37,14 +37,17 @@ __all__ = [
     "PATTERNS",
     "PROCESSED_SUFFIXES",
     "RAW_SUFFIXES",
+    "GainMap",
     "RawImage",
     "check_metadata",
+    "flat_field_gain_map",
     "from_picamera2",
     "is_jpeg",
     "is_npy",
     "override",
     "read_brcm",
     "read_dng",
+    "read_gain_map",
     "read_headless",
     "read_npz",
     "read_picamera2_npy",
@@ -53,6 +56,7 @@ __all__ = [
     "to_picamera2",
     "write_brcm",
     "write_dng",
+    "write_linear_dng",
     "write_npz",
     "write_picamera2_npy",
 ]

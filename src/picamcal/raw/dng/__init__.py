@@ -8,13 +8,16 @@ CFA pattern, per-site black levels and white level from LibRaw (:mod:`~picamcal.
 exposure, capture date and colour tags from the TIFF tags. The writer (:mod:`~picamcal.raw.dng.writer`) makes an
 uncompressed DNG 1.4 that LibRaw reads back bit-exactly: IFD 0 with the mosaic in one strip and the DNG colour
 tags (their maths is in the writer's notes), and an EXIF IFD with the exposure time, ISO and capture date
-(docs/dng.md).
+(docs/dng.md). With a calibration it adds the flat field as GainMap opcodes that raw editors apply
+(:mod:`~picamcal.raw.dng.opcodes`); :mod:`~picamcal.raw.dng.linear` writes corrected RGB as a LinearRaw DNG.
 """
 
 from __future__ import annotations
 
+from .linear import write_linear_dng
+from .opcodes import GainMap, flat_field_gain_map, read_gain_map
 from .reader import read_dng
 from .tiff import is_dng
 from .writer import write_dng
 
-__all__ = ["is_dng", "read_dng", "write_dng"]
+__all__ = ["GainMap", "flat_field_gain_map", "is_dng", "read_dng", "read_gain_map", "write_dng", "write_linear_dng"]

@@ -32,9 +32,10 @@ import numpy as np
 
 from ..._atomic import atomic_path
 from ..._version import __version__
-from ...errors import OutputError, RawFormatError, short
+from ...errors import CalibrationFileError, OutputError, RawFormatError, short
 from ...records import json_default
 from ..model import METADATA_KINDS, RawImage, require_black_level
+from .opcodes import FlatField, GainMap, encode_gain_map, flat_field_gain_map
 from .tags import (
     AS_SHOT_NEUTRAL,
     ASCII,
@@ -72,6 +73,7 @@ from .tags import (
     NEW_SUBFILE_TYPE,
     OFFSET_TIME,
     OFFSET_TIME_ORIGINAL,
+    OPCODE_LIST2,
     ORIENTATION,
     PHOTOMETRIC,
     PLANAR_CONFIGURATION,
@@ -123,13 +125,13 @@ def _vector(meta: Mapping[str, Any], key: str, length: int, source: str) -> np.n
     return array
 
 
-def _colour_tags(raw: RawImage) -> dict[str, Any]:
-    """AsShotNeutral, ColorMatrix1, ForwardMatrix1 and CalibrationIlluminant1 from what ``raw`` knows.
+def colour_tags(meta: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """AsShotNeutral, ColorMatrix1, ForwardMatrix1 and CalibrationIlluminant1 from a frame's metadata.
 
     The neutral comes from ``colour_gains`` (else a DNG's ``as_shot_neutral``, else no balance); the matrices
-    from ``colour_correction_matrix`` (else a DNG's own matrices, else the identity CCM).
+    from ``colour_correction_matrix`` (else a DNG's own matrices, else the identity CCM). ``source`` names the
+    frame in messages.
     """
-    meta, source = raw.metadata, raw.source
     gains = _vector(meta, "colour_gains", 2, source)
     neutral = _vector(meta, "as_shot_neutral", 3, source)
     if gains is not None:
@@ -190,7 +192,7 @@ def _known(meta: Mapping[str, Any], key: str, source: str) -> Any:
     return value
 
 
-def _exif_entries(meta: Mapping[str, Any], written: tuple[str, str | None], source: str) -> list[Entry]:
+def exif_entries(meta: Mapping[str, Any], written: tuple[str, str | None], source: str) -> list[Entry]:
     """The EXIF IFD: version, exposure time, ISO and capture date (the metadata's timestamp, else the write time)."""
     entries = [entry(EXIF_VERSION, UNDEFINED, b"0232")]
     exposure = _known(meta, "exposure_time_s", source)
@@ -225,7 +227,9 @@ def _finite_json(value: Any) -> Any:
     return value
 
 
-def write_dng(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = True) -> Path:
+def write_dng(
+    path: str | os.PathLike[str], raw: RawImage, overwrite: bool = True, gain_map: GainMap | FlatField | None = None
+) -> Path:
     """Write a RawImage as an uncompressed DNG 1.4 file that raw editors render with the camera's colour.
 
     What goes where (docs/dng.md):
@@ -237,6 +241,9 @@ def write_dng(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
       see the module notes), ``CalibrationIlluminant1``; the metadata as JSON in ``ImageDescription``.
     - EXIF IFD: ``ExposureTime`` (``exposure_time_s``), ``ISOSpeedRatings`` (``round(100 * analogue_gain)``,
       else ``iso``), ``DateTimeOriginal`` (``timestamp``, EXIF or ISO 8601 text, else the write time).
+    - With ``gain_map``: ``OpcodeList2``, four GainMap opcodes (one per Bayer site) that raw editors apply before
+      demosaicing, so that they show the frame flat-fielded; the mosaic itself is written unchanged
+      (:mod:`~picamcal.raw.dng.opcodes`).
 
     A RawImage read from a DNG without ``colour_gains`` or ``colour_correction_matrix`` keeps the file's
     ``as_shot_neutral`` and colour matrices. The file is written to a temporary name and renamed.
@@ -249,6 +256,10 @@ def write_dng(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
         The mosaic and its metadata; its black level must be known.
     overwrite : bool
         Replace an existing file (default); if false, an existing file is an error.
+    gain_map : Calibration or GainMap, optional
+        A calibration of this sensor, size and Bayer order, whose flat field becomes the gain map
+        (:func:`~picamcal.raw.dng.opcodes.flat_field_gain_map`: the centre's colour kept, smallest gain 1), or a
+        :class:`~picamcal.raw.dng.opcodes.GainMap` made for this size.
 
     Returns
     -------
@@ -259,6 +270,10 @@ def write_dng(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
     ------
     RawFormatError
         The black level is unknown (NaN), or the colour, exposure or gain metadata is malformed.
+    CalibrationFileError
+        ``gain_map`` is for another size or Bayer order, or its flat field needs a gain above
+        :data:`~picamcal.raw.dng.opcodes.MAX_GAIN` (naming the calibration file, or this file for a calibration
+        made in memory); nothing is written.
     OutputError
         The file exists and ``overwrite`` is false, cannot be written, or the frame exceeds a TIFF's 4 GiB.
 
@@ -270,41 +285,93 @@ def write_dng(path: str | os.PathLike[str], raw: RawImage, overwrite: bool = Tru
     PosixPath('white.dng')
     >>> picamcal.read_raw("white.dng").metadata["exposure_time_s"] == white.metadata["exposure_time_s"]
     True
+
+    The same frame with the flat field of a calibration, for an editor to apply:
+
+    >>> cal = picamcal.calibrate(white)  # the flat field alone
+    >>> _ = write_dng("white-flat.dng", white, gain_map=cal)
+    >>> bool(np.array_equal(picamcal.read_raw("white-flat.dng").bayer, white.bayer))
+    True
     """
     path = Path(path)
     require_black_level(raw)
+    opcodes = _gain_map_entries(raw, gain_map, path)
     mosaic = np.ascontiguousarray(raw.bayer, dtype="<u2")
-    now = datetime.now().astimezone()
-    written = _exif_datetime(now) or (now.strftime("%Y:%m:%d %H:%M:%S"), None)
+    written = write_time()
     try:
         ifd0 = _ifd0_entries(raw, mosaic.nbytes, written[0])
-        exif = _exif_entries(raw.metadata, written, raw.source)
+        exif = exif_entries(raw.metadata, written, raw.source)
     except OutputError as exc:  # a value no TIFF field holds (an exposure of 2**40 s)
         raise OutputError(exc.problem, path) from None
+    return write_tiff(path, [*ifd0, *opcodes], exif, mosaic, overwrite)
+
+
+def write_time() -> tuple[str, str | None]:
+    """Now, as an EXIF date and its UTC offset."""
+    now = datetime.now().astimezone()
+    return _exif_datetime(now) or (now.strftime("%Y:%m:%d %H:%M:%S"), None)
+
+
+def write_tiff(path: Path, ifd0: list[Entry], exif: list[Entry], pixels: np.ndarray, overwrite: bool) -> Path:
+    """Write IFD 0 (all but its EXIF and strip offsets), the EXIF IFD and ``pixels`` as one strip, atomically."""
     # Offsets are 4-byte fields whatever their value: lay out with zeros, then again with the real offsets.
     header = 8
     size0 = len(ifd_bytes([*ifd0, entry(EXIF_IFD, LONG, 0), entry(STRIP_OFFSETS, LONG, 0)], header))
     exif_at = align_up(header + size0, 2)
     exif_bytes = ifd_bytes(exif, exif_at)
     strip_at = align_up(exif_at + len(exif_bytes), _DATA_ALIGNMENT)
-    if strip_at + mosaic.nbytes >= 2**32:
-        raise OutputError(f"a {raw.width}x{raw.height} frame is too large for a DNG (TIFF files end at 4 GiB)", path)
+    if strip_at + pixels.nbytes >= 2**32:
+        height, width = pixels.shape[:2]
+        raise OutputError(f"a {width}x{height} frame is too large for a DNG (TIFF files end at 4 GiB)", path)
     ifd0_bytes = ifd_bytes([*ifd0, entry(EXIF_IFD, LONG, exif_at), entry(STRIP_OFFSETS, LONG, strip_at)], header)
     with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
         f.write(b"II*\x00" + struct.pack("<I", header))
         f.write(ifd0_bytes.ljust(exif_at - header, b"\x00"))
         f.write(exif_bytes.ljust(strip_at - exif_at, b"\x00"))
-        f.write(mosaic.data)
+        f.write(pixels.data)
     return path
+
+
+def _gain_map_entries(raw: RawImage, gain_map: GainMap | FlatField | None, path: Path) -> list[Entry]:
+    """OpcodeList2 with the four GainMap opcodes of ``gain_map`` (a calibration's flat field or a GainMap).
+
+    A mismatch names the image's file (the file being written for a frame made in memory); a gain out of range
+    names the calibration's file (the file being written for a calibration made in memory).
+    """
+    if gain_map is None:
+        return []
+    image = raw.metadata.get("path", path)
+    if isinstance(gain_map, GainMap):
+        if gain_map.size != (raw.width, raw.height):
+            width, height = gain_map.size
+            raise CalibrationFileError(
+                f"image does not match the gain map: size {raw.width}x{raw.height}, gain map is for {width}x{height}",
+                image,
+            )
+    else:
+        try:
+            gain_map.check_compatible(raw)
+        except CalibrationFileError as exc:
+            raise CalibrationFileError(exc.problem, image) from None
+        try:
+            gain_map = flat_field_gain_map(gain_map)
+        except CalibrationFileError as exc:
+            raise CalibrationFileError(exc.problem, exc.path or path) from None
+    return [entry(OPCODE_LIST2, UNDEFINED, encode_gain_map(gain_map))]
+
+
+def metadata_record(meta: Mapping[str, Any], sensor: str | None) -> str:
+    """picamcal's JSON record of a frame for ImageDescription, ``{"picamcal": {"sensor": ..., ...}}``."""
+    record = _finite_json({METADATA_KEY: {"sensor": sensor, **meta}})
+    return json.dumps(record, default=json_default, allow_nan=False)
 
 
 def _ifd0_entries(raw: RawImage, nbytes: int, written: str) -> list[Entry]:
     """IFD 0 but its offsets: the mosaic's layout (``nbytes`` in one strip), the DNG tags and picamcal's record."""
-    colour = _colour_tags(raw)
+    colour = colour_tags(raw.metadata, raw.source)
     meta = {k: v for k, v in raw.metadata.items() if k not in ("path", "format", *COLOUR_KEYS)}
     model = raw.sensor or str(meta.get("model", "unknown"))
-    record = _finite_json({METADATA_KEY: {"sensor": raw.sensor, **meta}})
-    description = json.dumps(record, default=json_default, allow_nan=False)
+    description = metadata_record(meta, raw.sensor)
     entries = [
         entry(NEW_SUBFILE_TYPE, LONG, 0),
         entry(IMAGE_WIDTH, LONG, raw.width),
