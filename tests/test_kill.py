@@ -170,7 +170,7 @@ def test_killed_correct_with_workers_leaves_no_process_and_no_partial_file(data,
         seen[:] = processes_of(tag)
         return sum("forkserver" in cmdline(p) for p in seen) >= 3
 
-    assert kill_when(process, under_way), "the batch finished before the kill"
+    assert kill_when(process, under_way, pause=0), "the batch finished before the kill"
     assert any("resource_tracker" in cmdline(p) for p in seen)
     assert_nothing_left_running(tag)
     finished = sorted(p.name for p in out.glob("*.tiff") if not p.name.startswith("."))

@@ -8,13 +8,20 @@ local process pool or on a dask cluster, so the outputs are the same bytes eithe
 
 The modules: :mod:`~picamcal.batch.options` (the options, checked once), :mod:`~picamcal.batch.inputs`
 (files, folders and patterns), :mod:`~picamcal.batch.disk` (the output place and its room),
-:mod:`~picamcal.batch.worker` (the task and what a worker keeps), :mod:`~picamcal.batch.executors` (this
-process, a pool, dask) and :mod:`~picamcal.batch.run` (:func:`run_batch` itself).
+:mod:`~picamcal.batch.worker` (the task and what a worker keeps), :mod:`~picamcal.batch.pipeline` (a
+worker's reading, correcting and writing overlapped), :mod:`~picamcal.batch.executors` (this process, a pool,
+dask) and :mod:`~picamcal.batch.run` (:func:`run_batch` itself).
 
 What it guarantees:
 
-- **Bounded memory.** At most two tasks per worker are in flight; inputs are read by the workers, one at
-  a time, never all up front; a task returns a few words, not its image.
+- **Overlapped stages.** Each worker reads the next file and writes the last one while it corrects one, in
+  threads (LibRaw's decoding, the kernel, compression and file writes release the GIL), so that a file costs
+  about its slowest stage rather than the sum (:mod:`~picamcal.batch.pipeline`). A pool or cluster gets the
+  files in tasks of a few consecutive files (:func:`~picamcal.batch.executors.chunks`).
+- **Bounded memory.** A worker holds at most two corrected images and two decoded inputs
+  (:data:`~picamcal.batch.pipeline.OUTPUT_SLOTS`, :data:`~picamcal.batch.pipeline.READ_AHEAD`), whatever the
+  number of files; at most two tasks per worker are in flight; inputs are read by the workers, never all up
+  front; a task returns a few words per file, not its images.
 - **Calibration loaded once per worker** (a module-level cache keyed by the file's path and SHA-256).
 - **No half-written output.** Every file is written to a temporary name and renamed; zarr chunks likewise
   (zarr's local store writes each chunk to a temporary name). Temporaries left by a killed batch are

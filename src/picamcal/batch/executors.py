@@ -1,24 +1,31 @@
 """Where the tasks run: in this process, in a local process pool, or on a dask.distributed cluster.
 
-The three runners have one interface (``window``, ``submit``, ``finished``, ``close``) and run the same task,
-:func:`picamcal.batch.worker.process`, so the outputs are the same bytes whichever runs them. A pool's workers
-end with the process that started them, however it ends (:func:`exit_with_parent`).
+The three runners have one interface (``outcomes``, ``close``) and run the same pipeline of stages
+(:func:`picamcal.batch.worker.outcomes`), so the outputs are the same bytes whichever runs them. A pool or a
+cluster gets the files in tasks of a few (:func:`chunks`), so that each worker overlaps reading, correcting
+and writing over consecutive files; in this process the files go through one pipeline. A pool's workers end
+with the process that started them, however it ends (:func:`exit_with_parent`).
 """
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import os
 import socket
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Generator, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.context import BaseContext
 from typing import Any
 
 from ..errors import PicamcalError
-from .worker import Job, Outcome, Settings, check_worker, process
+from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs
+
+#: The most files in one task: the pipeline's start and end (reading the first file, writing the last, not
+#: overlapped) are paid once per task, and the outcomes come back once per task.
+MAX_CHUNK = 8
 
 
 def available_cores() -> int:
@@ -40,30 +47,63 @@ def _pool_context() -> BaseContext:
     unsafe with numba, zarr's event loop or a GUI), and fast (forked from a server that preloaded picamcal)."""
     if "forkserver" in multiprocessing.get_all_start_methods():
         context = multiprocessing.get_context("forkserver")
-        # The demosaicing library's import (it brings colour-science) is most of a worker's start-up.
-        context.set_forkserver_preload(["picamcal.batch", "colour_demosaicing"])
+        # What every worker imports (the raw reader, the kernel's numba), once in the server rather than in each
+        # worker; not colour-demosaicing (a second to import), which only the reference engine needs.
+        context.set_forkserver_preload(["picamcal.batch", "picamcal.raw", "rawpy", "numba"])
         return context
     return multiprocessing.get_context("spawn")
 
 
 class InProcess:
-    """``workers=0``: each job runs here, at once, when it is submitted."""
-
-    window = 1
+    """``workers=0``: the files go through one pipeline in this process (:func:`picamcal.batch.worker.outcomes`)."""
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
 
-    def submit(self, job: Job) -> Future[Outcome]:
-        future: Future[Outcome] = Future()
-        future.set_result(process(self.settings, job))
-        return future
-
-    def finished(self, futures: list[Any]) -> Iterable[Any]:
-        return futures
+    def outcomes(self, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
+        """Each job's outcome as it finishes (the pipeline stops by itself when the output place fails)."""
+        yield from outcomes(self.settings, jobs)
 
     def close(self) -> None:
         pass
+
+
+def chunks(jobs: Sequence[Job], workers: int) -> list[list[Job]]:
+    """The jobs in tasks of consecutive files: about two per worker, so that the last ones are shared out, and at
+    most :data:`MAX_CHUNK` files, so that the outcomes come back as the batch goes.
+
+    Examples
+    --------
+    >>> [len(chunk) for chunk in chunks([Job(i, f"{i}.dng", None) for i in range(10)], workers=2)]
+    [3, 3, 3, 1]
+    """
+    size = max(1, min(MAX_CHUNK, math.ceil(len(jobs) / (2 * workers))))
+    return [list(jobs[start : start + size]) for start in range(0, len(jobs), size)]
+
+
+def _chunked(runner: Pool | Dask, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
+    """Run the tasks of ``jobs`` (:func:`chunks`), submitting as others finish so that at most ``runner.window``
+    are in flight, and none once ``stop()`` is true; each job's outcome as its task finishes."""
+    queue = iter(chunks(jobs, runner.workers))
+    in_flight: dict[Any, list[Job]] = {}
+    while True:
+        while not stop() and len(in_flight) < runner.window and (chunk := next(queue, None)) is not None:
+            in_flight[runner.submit(chunk)] = chunk
+        if not in_flight:
+            return
+        for future in runner.finished(list(in_flight)):
+            yield from _outcomes_of(future, in_flight.pop(future))
+
+
+def _outcomes_of(future: Any, chunk: list[Job]) -> list[Outcome]:
+    """The task's outcomes; the files of a task that died with its worker (or was lost by the cluster) fail."""
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        reason = "its worker process died (out of memory, or killed)"
+    except Exception as exc:
+        reason = f"the task was lost ({type(exc).__name__}: {exc})"
+    return [Outcome(job.index, reason) for job in chunk]
 
 
 class Pool:
@@ -71,22 +111,26 @@ class Pool:
 
     def __init__(self, settings: Settings, size: int) -> None:
         self.settings = settings
-        self.size = size
+        self.workers = size
         self.window = 2 * size
         self.context = _pool_context()
         self.executor = self._executor()
 
     def _executor(self) -> ProcessPoolExecutor:
-        threads = max(1, available_cores() // self.size)
-        return ProcessPoolExecutor(self.size, mp_context=self.context, initializer=_init_worker, initargs=(threads,))
+        threads = max(1, available_cores() // self.workers)
+        return ProcessPoolExecutor(self.workers, mp_context=self.context, initializer=_init_worker, initargs=(threads,))
 
-    def submit(self, job: Job) -> Future[Outcome]:
+    def outcomes(self, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
+        """Each job's outcome as its task finishes; no task is started once ``stop()`` is true."""
+        return _chunked(self, jobs, stop)
+
+    def submit(self, chunk: list[Job]) -> Future[list[Outcome]]:
         try:
-            return self.executor.submit(process, self.settings, job)
+            return self.executor.submit(process_jobs, self.settings, chunk)
         except BrokenProcessPool:
             self.executor.shutdown(wait=False, cancel_futures=True)
             self.executor = self._executor()
-            return self.executor.submit(process, self.settings, job)
+            return self.executor.submit(process_jobs, self.settings, chunk)
 
     def finished(self, futures: list[Any]) -> Iterable[Any]:
         return wait(futures, return_when=FIRST_COMPLETED).done
@@ -145,11 +189,16 @@ class Dask:
 
         self.settings = settings
         self.client = client
-        self.window = 2 * max(1, sum(client.nthreads().values()))
+        self.workers = max(1, sum(client.nthreads().values()))
+        self.window = 2 * self.workers
         self.completed = as_completed(loop=client.loop)
 
-    def submit(self, job: Job) -> Any:
-        future = self.client.submit(process, self.settings, job, pure=False)
+    def outcomes(self, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
+        """Each job's outcome as its task finishes; no task is started once ``stop()`` is true."""
+        return _chunked(self, jobs, stop)
+
+    def submit(self, chunk: list[Job]) -> Any:
+        future = self.client.submit(process_jobs, self.settings, chunk, pure=False)
         self.completed.add(future)
         return future
 
@@ -203,4 +252,14 @@ def connect(address: str, settings: Settings, timeout: float) -> Any:
 
 Runner = InProcess | Pool | Dask
 
-__all__ = ["Dask", "InProcess", "Pool", "Runner", "available_cores", "connect", "exit_with_parent"]
+__all__ = [
+    "MAX_CHUNK",
+    "Dask",
+    "InProcess",
+    "Pool",
+    "Runner",
+    "available_cores",
+    "chunks",
+    "connect",
+    "exit_with_parent",
+]

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,7 @@ from .disk import prepare_folder, probe
 from .executors import Dask, InProcess, Pool, Runner, available_cores, connect
 from .inputs import expand_inputs, is_pattern
 from .options import BatchOptions
-from .worker import Job, Outcome, Settings
+from .worker import Job, Settings
 
 PathArg = str | os.PathLike[str]
 
@@ -275,50 +274,36 @@ def _drive(
     stack: ZarrStack | None,
     progress: Callable[[int, int], None] | None,
 ) -> str | None:
-    """Run the jobs, submitting as others finish so that at most ``runner.window`` are in flight; record each
-    outcome. Returns why the output place became unusable, if it did (then no more jobs were started)."""
-    queue = iter(jobs)
-    in_flight: dict[Any, Job] = {}
-    count = 0
+    """Run the jobs and record each outcome. Returns why the output place became unusable, if it did (then no
+    more work was started)."""
     place_error = None
+    count = 0
     if progress is not None:
         progress(0, len(jobs))
+    by_index = {job.index: job for job in jobs}
+    outcomes = runner.outcomes(jobs, lambda: place_error is not None)
     try:
-        while True:
-            while place_error is None and len(in_flight) < runner.window and (job := next(queue, None)) is not None:
-                in_flight[runner.submit(job)] = job
-            if not in_flight:
-                return place_error
-            for future in runner.finished(list(in_flight)):
-                job = in_flight.pop(future)
-                outcome = _outcome_of(future, job)
-                source = sources[job.index]
-                for message in outcome.warnings:
-                    warnings.warn(message.replace(job.source, str(source), 1), PicamcalWarning, stacklevel=2)
-                if outcome.error is None:
-                    result.done.append(source)
-                    if stack is not None:
-                        stack.finished(job.index)
-                else:
-                    result.failed.append((source, outcome.error))
-                    place_error = place_error or outcome.place_error
-                count += 1
-                if progress is not None:
-                    progress(count, len(jobs))
+        for outcome in outcomes:
+            job = by_index[outcome.index]
+            source = sources[job.index]
+            for message in outcome.warnings:
+                warnings.warn(message.replace(job.source, str(source), 1), PicamcalWarning, stacklevel=2)
+            if outcome.error is None:
+                result.done.append(source)
+                if stack is not None:
+                    stack.finished(job.index)
+            else:
+                result.failed.append((source, outcome.error))
+                place_error = place_error or outcome.place_error
+            count += 1
+            if progress is not None:
+                progress(count, len(jobs))
     finally:
+        outcomes.close()  # a pipeline in this process stops its stages if the loop ended early
         runner.close()
         if stack is not None:
             stack.write_record()
-
-
-def _outcome_of(future: Any, job: Job) -> Outcome:
-    """The task's outcome; a task that died with its worker (or was lost by the cluster) is a failure."""
-    try:
-        return future.result()
-    except BrokenProcessPool:
-        return Outcome(job.index, "its worker process died (out of memory, or killed)")
-    except Exception as exc:
-        return Outcome(job.index, f"the task was lost ({type(exc).__name__}: {exc})")
+    return place_error
 
 
 __all__ = ["BatchResult", "run_batch"]

@@ -1,15 +1,15 @@
-"""The task every worker runs: correct one file and write its output; and what a worker keeps between tasks.
+"""The task every worker runs: correct some files and write their outputs; and what a worker keeps between tasks.
 
-A task is :func:`process` with the batch's :class:`Settings` (small and picklable, sent with every task) and
-one :class:`Job`; it returns an :class:`Outcome` of a few words, never the image. What a worker loads once (the
-calibration, a white reference, a tuning file) is kept in a module-level cache keyed by what identifies it,
-the calibration by its path and SHA-256.
+A task is :func:`process_jobs` with the batch's :class:`Settings` (small and picklable, sent with every task)
+and a few :class:`Job` values; it returns an :class:`Outcome` of a few words for each, never an image. The files
+of a task are read, corrected and written at once (:mod:`picamcal.batch.pipeline`). What a worker loads once (the
+calibration, a white reference, a tuning file) is kept in a module-level cache keyed by what identifies it, the
+calibration by its path and SHA-256.
 """
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -24,10 +24,11 @@ from ..export.tuning import load_tuning
 from ..modes import Mode
 from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
 from ..output.ome_zarr import write_frame
-from ..raw import read_raw
+from ..raw import RawImage, read_raw
 from ..raw.processed import ProcessedImage, read_processed
 from ..records import sha256_file
 from .disk import PLACE_ERRORS
+from .pipeline import Finished, Slot, overlapped
 
 _T = TypeVar("_T")
 
@@ -107,36 +108,78 @@ def check_worker(settings: Settings) -> str | None:
     return None
 
 
-def process(settings: Settings, job: Job) -> Outcome:
-    """Correct one file and write its output: the task every worker runs (a top-level function, picklable).
+def process_jobs(settings: Settings, jobs: Sequence[Job]) -> list[Outcome]:
+    """Correct some files and write their outputs: the task every worker runs (a top-level function, picklable).
 
-    Never raises for a problem with the file: the outcome says what went wrong, in one line.
+    Never raises for a problem with a file: each file's outcome says what went wrong, in one line. The files go
+    through :func:`outcomes`, reading, correcting and writing overlapped.
     """
-    place_error = None
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            _write(settings, job, *_correct_file(settings, Path(job.source)))
-            error = None
-        except PicamcalError as exc:
-            error = exc.problem if exc.path == job.source else str(exc)
-            cause = exc.__cause__
-            if isinstance(exc, OutputError) and isinstance(cause, OSError) and cause.errno in PLACE_ERRORS:
-                place_error = exc.problem
-        except Exception as exc:  # a surprise in one file must not stop the others
-            error = f"{type(exc).__name__}: {exc}"
-    messages = tuple(str(w.message) for w in caught if issubclass(w.category, PicamcalWarning))
+    return list(outcomes(settings, jobs))
+
+
+def outcomes(settings: Settings, jobs: Sequence[Job]) -> Iterator[Outcome]:
+    """Each job's outcome as it finishes, the jobs read, corrected and written at once
+    (:func:`picamcal.batch.pipeline.overlapped`); after a failure of the output place itself (a full disk),
+    nothing more is done and the jobs not done have no outcome."""
+    try:
+        calibration_of(settings)  # once, here, before the stages' threads would each load it
+    except PicamcalError as exc:
+        yield from (Outcome(job.index, str(exc)) for job in jobs)
+        return
+    stages = _Stages(settings)
+    for finished in overlapped(jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error):
+        yield _outcome(finished)
+
+
+def _outcome(finished: Finished[Job]) -> Outcome:
+    job, exc = finished.job, finished.error
+    messages = tuple(str(w.message) for w in finished.warnings if issubclass(w.category, PicamcalWarning))
+    if exc is None:
+        return Outcome(job.index, warnings=messages)
+    if isinstance(exc, PicamcalError):
+        error = exc.problem if exc.path == job.source else str(exc)
+    else:  # a surprise in one file must not stop the others
+        error = f"{type(exc).__name__}: {exc}"
+    place_error = exc.problem if isinstance(exc, OutputError) and _is_place_error(exc) else None
     return Outcome(job.index, error, place_error, messages)
 
 
-def _correct_file(settings: Settings, source: Path) -> tuple[np.ndarray, dict[str, Any]]:
-    """The corrected image, and the metadata its colour matrix comes from (the raw's; none for processed)."""
-    cal = calibration_of(settings)
-    if settings.processed:
-        return _correct_processed(read_processed(source, settings.decode), cal, settings), {}
-    # The calibration's size is checked from the file's header, before a frame of another size is decoded.
-    raw = read_raw(source, **settings.read_options, expected_shape=(cal.height, cal.width))
-    return correct(raw, cal, mode=settings.mode, binned=settings.binned), raw.metadata
+def _is_place_error(exc: Exception) -> bool:
+    """Whether ``exc`` says that the output place itself is unusable (disk full, read-only)."""
+    cause = exc.__cause__
+    return isinstance(exc, OutputError) and isinstance(cause, OSError) and cause.errno in PLACE_ERRORS
+
+
+class _Stages:
+    """The three stages of a batch's files (:func:`picamcal.batch.pipeline.overlapped`) with its settings."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.calibration = calibration_of(settings)
+
+    def read(self, job: Job) -> RawImage | ProcessedImage:
+        """The decoded file; a raw file's size is checked from its header, before a frame of another size is
+        decoded."""
+        if self.settings.processed:
+            return read_processed(Path(job.source), self.settings.decode)
+        cal = self.calibration
+        return read_raw(Path(job.source), **self.settings.read_options, expected_shape=(cal.height, cal.width))
+
+    def correct(self, image: RawImage | ProcessedImage, slot: Slot) -> tuple[np.ndarray, dict[str, Any]]:
+        """The corrected image (into the slot's array when the kernel can reuse it), and the metadata its colour
+        matrix comes from (the raw's; none for processed images)."""
+        settings, cal = self.settings, self.calibration
+        if isinstance(image, ProcessedImage):
+            return _correct_processed(image, cal, settings), {}
+        if settings.binned:
+            return correct(image, cal, mode=settings.mode, binned=True), image.metadata
+        # uint16-tiff codes straight from the kernel: no float32 image at full resolution to encode afterwards
+        dtype = np.uint16 if settings.output_format == "uint16-tiff" else np.float32
+        slot.array = correct(image, cal, mode=settings.mode, out=slot.array, dtype=dtype)
+        return slot.array, image.metadata
+
+    def write(self, job: Job, corrected: tuple[np.ndarray, dict[str, Any]]) -> None:
+        _write(self.settings, job, *corrected)
 
 
 def _correct_processed(image: ProcessedImage, cal: Calibration, settings: Settings) -> np.ndarray:
@@ -192,4 +235,4 @@ def _colour_matrix(settings: Settings, source_metadata: dict[str, Any]) -> Colou
     return camera_to_srgb(source_metadata, _tuning(settings.tuning), tuning_path=settings.tuning)
 
 
-__all__ = ["Job", "Outcome", "Settings", "calibration_of", "check_worker", "process"]
+__all__ = ["Job", "Outcome", "Settings", "calibration_of", "check_worker", "outcomes", "process_jobs"]

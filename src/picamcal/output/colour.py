@@ -7,6 +7,7 @@ transfer function (IEC 61966-2-1).
 
 from __future__ import annotations
 
+import functools
 import os
 import warnings
 from collections.abc import Mapping
@@ -236,12 +237,50 @@ def encode_srgb(
     rgb = check_rgb(rgb)
     matrix = np.eye(3) if colour_matrix is None else colour_matrix.matrix
     to_linear = (white_level * matrix).T
-    top = 2**bits - 1
     out = np.empty(rgb.shape, dtype=np.uint8 if bits == 8 else np.uint16)
+    base, inside = _code_table(bits)
+    cells = len(base) - 1
     for rows in strips(rgb.shape):
-        linear = np.nan_to_num(rgb[rows].astype(float) @ to_linear, nan=0.0)
-        out[rows] = np.rint(top * srgb_transfer(np.clip(linear, 0.0, 1.0)))
+        linear = rgb[rows].astype(float) @ to_linear
+        # fmax and fmin take the number where the other is NaN: NaN gives 0, and +-inf clip as any value
+        np.fmin(np.fmax(linear, 0.0, out=linear), 1.0, out=linear)
+        cell = (linear * cells).astype(np.intp)  # exact: cells is a power of two
+        out[rows] = base[cell] + (linear >= inside[cell])
     return out
+
+
+@functools.cache
+def _code_table(bits: int) -> tuple[np.ndarray, np.ndarray]:
+    """``round(top * srgb_transfer(x))`` for x in [0, 1] as a table lookup, exactly (``top = 2**bits - 1``).
+
+    [0, 1] is cut into ``cells`` equal cells (a power of two, narrower than the distance between two codes'
+    thresholds, so that at most one threshold falls inside a cell); ``base[c]`` is the code at the start of cell
+    c and ``inside[c]`` the threshold inside it (inf if none), so that the code of x in cell c is
+    ``base[c] + (x >= inside[c])``. A threshold is the smallest float64 x whose code reaches k, found by bisection
+    over the float64 values (ordered as their bit patterns): the same arithmetic as the formula, so the same codes.
+    """
+    top = 2**bits - 1
+    # The steepest part of the curve is its linear segment (slope 12.92): thresholds there are 1 / (12.92 * top)
+    # apart, more than a cell of 2**-12 (8 bits) or 2**-20 (16 bits).
+    cells = 2**12 if bits == 8 else 2**20
+
+    def codes(x: np.ndarray) -> np.ndarray:
+        return np.rint(top * srgb_transfer(x))
+
+    wanted = np.arange(1, top + 1)
+    low = np.zeros(top, np.int64)  # bit patterns of 0.0, whose code 0 is below every k
+    high = np.full(top, np.float64(1.0).view(np.int64))  # and of 1.0, whose code top reaches every k
+    while np.any(high - low > 1):
+        middle = low + (high - low) // 2
+        reached = codes(middle.view(np.float64)) >= wanted
+        high, low = np.where(reached, middle, high), np.where(reached, low, middle)
+    thresholds = high.view(np.float64)
+    base = codes(np.arange(cells + 1) / cells).astype(np.uint8 if bits == 8 else np.uint16)
+    cell = (thresholds * cells).astype(np.intp)
+    within = thresholds > cell / cells  # a threshold at a cell's start is in its base already
+    inside = np.full(cells + 1, np.inf)
+    inside[cell[within]] = thresholds[within]
+    return base, inside
 
 
 def check_rgb(rgb: np.ndarray) -> np.ndarray:

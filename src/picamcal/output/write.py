@@ -55,7 +55,8 @@ def write_corrected(
     path : path-like
         The file to write (its suffix is not checked: :data:`OUTPUT_SUFFIXES` has the usual ones).
     rgb : ndarray (H, W, 3)
-        Corrected linear RGB, the white reference at 1.0.
+        Corrected linear RGB, the white reference at 1.0; for ``uint16-tiff`` also its codes, planar (3, H, W)
+        uint16, as ``picamcal.correct(..., dtype=np.uint16)`` gives them (written as they are).
     output_format : str
         One of :data:`OUTPUT_FORMATS`.
     metadata : mapping, optional
@@ -97,14 +98,19 @@ def write_corrected(
         raise ValueError(f"unknown output format {output_format!r}: choose one of {', '.join(OUTPUT_FORMATS)}")
     if compression is not None and (compression != "zstd" or output_format not in TIFF_FORMATS):
         raise ValueError(f"compression {compression!r} is for {' and '.join(TIFF_FORMATS)} only (zstd)")
-    rgb = check_rgb(rgb)
     info = dict(metadata or {})
     if output_format != "float32-tiff":
         info.update(output_format=output_format, picamcal_version=__version__)
-    if output_format in TIFF_FORMATS:
+    if output_format in TIFF_FORMATS:  # write_tiff checks the image, and takes uint16-tiff codes as they are
         return write_tiff(path, rgb, output_format, info, overwrite=overwrite, compression=compression)
     return write_srgb(
-        path, rgb, output_format, info, colour_matrix=colour_matrix, white_level=white_level, overwrite=overwrite
+        path,
+        check_rgb(rgb),
+        output_format,
+        info,
+        colour_matrix=colour_matrix,
+        white_level=white_level,
+        overwrite=overwrite,
     )
 
 

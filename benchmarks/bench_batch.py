@@ -1,0 +1,276 @@
+"""A folder of raw frames to corrected files: where a batch's time goes, and how close it comes to the disk.
+
+Usage: python3 benchmarks/bench_batch.py [--frames 12] [--workers 2] [--format uint16-tiff+zstd ...]
+
+Simulated 8 MP IMX219 frames are written once as DNG files into a temporary folder (not timed). Then, all in
+this one run:
+
+- the split of one frame's time, each stage alone in one thread (median over the frames): reading the DNG
+  (``picamcal.read_raw``, rawpy), correcting it (``picamcal.correct``, mode centre, into a reused output; the
+  uint16 formats straight to codes, ``dtype=np.uint16``) and writing it in each output format (float32 TIFF,
+  uint16 TIFF, uint16 zstd TIFF, sRGB PNG 8 and 16 bit, sRGB JPEG, one frame of an OME-Zarr stack);
+- the whole batch, ``run_batch`` with the given workers, for each format: its wall time (the pool's start
+  included), and its time per file once running (from the first output finished to the last, over the
+  ``n - workers`` files finished after each worker's first), in files/s and MB/s of input and of output;
+- baselines, with the same number of worker processes, already started: reading the n files alone, writing
+  the same corrected arrays alone in each format, and a plain copy of the n input files (``shutil.copyfile``,
+  one stream: what this file system gives);
+- the goal: the batch to uint16 zstd TIFF at most 1.3 times the slower of reading alone and writing alone,
+  "met" or "MISSED by N %".
+
+The files are not synced to the disk (the batch does not either), but each timed phase starts after an
+``os.sync()``, with nothing left to write back: "the disk" is this machine's file system, its page cache and,
+for outputs of many MB per second, its disk's own write-back speed. Formats slower than a second per frame are
+batched with fewer files. These machines are shared: times drift with the load, ratios less so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import shutil
+import statistics
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import picamcal
+from picamcal.batch import BatchOptions, run_batch
+from picamcal.correct import correct
+from picamcal.output import OUTPUT_SUFFIXES, camera_to_srgb, write_corrected
+from picamcal.output.ome_zarr import ZarrStack, write_frame
+from picamcal.raw import read_raw, write_dng
+from picamcal.simulate import make_camera, simulate_references, simulate_target
+
+GOAL = 1.3  # the batch at most this many times the slower of reading alone and writing alone
+GOAL_FORMAT = "uint16-tiff+zstd"
+#: The outputs measured: name -> (output format, compression); "ome-zarr" is a zarr stack.
+FORMATS: dict[str, tuple[str, str | None]] = {
+    "float32-tiff": ("float32-tiff", None),
+    "uint16-tiff": ("uint16-tiff", None),
+    "uint16-tiff+zstd": ("uint16-tiff", "zstd"),
+    "srgb-png": ("srgb-png", None),
+    "srgb-png16": ("srgb-png16", None),
+    "srgb-jpeg": ("srgb-jpeg", None),
+    "ome-zarr": ("float32-tiff", None),
+}
+WRITE_SAMPLES = 3  # frames timed per format for the split (the slow formats take seconds per frame)
+SLOW_WRITE_MS = 1000.0  # formats slower than this to write get only SLOW_FRAMES files in a batch
+SLOW_FRAMES = 6
+
+# What the baselines' worker processes use (inherited through fork): the corrected arrays and the zarr stack.
+_ARRAYS: dict[str, Any] = {}
+
+
+def _distinct_frames(folder: Path, count: int) -> tuple[Path, list[Path]]:
+    """A calibration and ``count`` DNG files of three distinct simulated targets (not timed)."""
+    camera = make_camera("imx219")
+    cal = picamcal.calibrate(**simulate_references(camera, seed=1))
+    cal_path = cal.save(folder / "cal.npz")
+    targets = [simulate_target(camera, seed=2 + i)[0] for i in range(min(3, count))]
+    frames = folder / "frames"
+    frames.mkdir()
+    paths = [write_dng(frames / f"f{i:02d}.dng", targets[i % len(targets)]) for i in range(count)]
+    return cal_path, paths
+
+
+def _median_ms(fn: Callable[[Any], object], items: Sequence[Any]) -> tuple[float, float]:
+    """Median wall and CPU milliseconds of ``fn(item)`` (CPU: of every thread of this process)."""
+    walls, cpus = [], []
+    for item in items:
+        wall, cpu = time.perf_counter(), time.process_time()
+        fn(item)
+        walls.append(time.perf_counter() - wall)
+        cpus.append(time.process_time() - cpu)
+    return 1e3 * statistics.median(walls), 1e3 * statistics.median(cpus)
+
+
+def _write(name: str, path: Path, index: int = 0) -> None:
+    """Write the corrected frame ``_ARRAYS`` holds for ``name`` to ``path`` (a zarr stack's frame ``index``)."""
+    output_format, compression = FORMATS[name]
+    if name == "ome-zarr":
+        write_frame(_ARRAYS["zarr"], index, _ARRAYS["float32"], source=str(path))
+        return
+    image = _ARRAYS["uint16"] if output_format == "uint16-tiff" else _ARRAYS["float32"]
+    matrix = _ARRAYS["matrix"] if output_format.startswith("srgb") else None
+    info = {"source": "f.dng", "calibration": "cal.npz", "mode": "centre", "binned": False}
+    write_corrected(path, image, output_format, info, colour_matrix=matrix, overwrite=True, compression=compression)
+
+
+def _read_only(path: Path) -> None:
+    read_raw(path)
+
+
+def _write_only(task: tuple[str, Path, int]) -> None:
+    _write(*task)
+
+
+def _pool_seconds(fn: Callable[[Any], None], tasks: list[Any], workers: int) -> float:
+    """Seconds for ``workers`` forked processes, started beforehand, to run ``fn`` on every task."""
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        list(pool.map(time.sleep, [0.2] * workers))  # start every worker before the clock
+        start = time.perf_counter()
+        list(pool.map(fn, tasks))
+        return time.perf_counter() - start
+
+
+def _batch(cal: Path, frames: list[Path], out: Path, name: str, workers: int) -> tuple[float, float, int]:
+    """``run_batch`` over ``frames`` in format ``name``: its wall seconds, its seconds per file once running, and
+    the bytes it wrote.
+
+    Once running: from the first output finished to the last (their modification times: the end of each file's
+    write, which the rename keeps), over the files finished after each worker's first, ``n - workers``. So the
+    pool's start and the first file of each worker (reading it, correcting it: nothing to overlap yet) are left
+    out, as the baselines' pools are started beforehand.
+    """
+    output_format, compression = FORMATS[name]
+    shutil.rmtree(out, ignore_errors=True)
+    if name == "ome-zarr":
+        options = BatchOptions(zarr_path=out, mode="centre", workers=workers)
+    else:
+        options = BatchOptions(
+            out_dir=out, mode="centre", output_format=output_format, compression=compression, workers=workers
+        )
+    start = time.perf_counter()
+    result = run_batch(cal, frames, options)
+    seconds = time.perf_counter() - start
+    if result.failed or len(result.done) != len(frames):
+        raise RuntimeError(f"the {name} batch failed: {result.failed}")
+    files = [p for p in out.rglob("*") if p.is_file()]
+    if name == "ome-zarr":  # a frame is finished when the last of its chunks (0/c/<frame>/...) is
+        ends: dict[str, int] = {}
+        for chunk in (p for p in files if "c" in p.relative_to(out).parts[:2]):
+            frame = chunk.relative_to(out / "0" / "c").parts[0]
+            ends[frame] = max(ends.get(frame, 0), chunk.stat().st_mtime_ns)
+        finished = sorted(ends.values())
+    else:
+        finished = sorted(p.stat().st_mtime_ns for p in files)
+    per_file = (finished[-1] - finished[0]) / 1e9 / max(1, len(frames) - workers)
+    return seconds, per_file, sum(p.stat().st_size for p in files)
+
+
+def _goal(value: float, goal: float) -> str:
+    return "met" if value <= goal else f"MISSED by {100 * (value / goal - 1):.0f} %"
+
+
+def bench(folder: Path, count: int, workers: int, names: Sequence[str]) -> list[str]:
+    cal_path, frames = _distinct_frames(folder, count)
+    cal = picamcal.load_calibration(cal_path)
+    raw = read_raw(frames[0])
+    input_mb = sum(p.stat().st_size for p in frames) / 1e6
+    float_out = correct(raw, cal, "centre")  # warm-up: numba's kernel and the calibration's fields
+    codes_out = correct(raw, cal, "centre", dtype=np.uint16)
+    _ARRAYS.update(float32=float_out, uint16=codes_out, matrix=camera_to_srgb(raw.metadata))
+    stack = ZarrStack(folder / "alone.zarr", [str(p) for p in frames], {}, "cal.npz")
+    stack.plan(overwrite=True)
+    stack.prepare(float_out.shape, 1, None)
+    stack.release()
+    _ARRAYS["zarr"] = str(folder / "alone.zarr" / "0")
+
+    raws = [read_raw(p) for p in frames[:3]]
+    read_ms, read_cpu = _median_ms(read_raw, frames)
+    correct_ms, correct_cpu = _median_ms(lambda r: correct(r, cal, "centre", out=float_out), raws)
+    codes_ms, codes_cpu = _median_ms(lambda r: correct(r, cal, "centre", out=codes_out, dtype=np.uint16), raws)
+    del raws
+
+    copy_dir = folder / "copy"
+    copy_dir.mkdir()
+    os.sync()
+    start = time.perf_counter()
+    for path in frames:
+        shutil.copyfile(path, copy_dir / path.name)
+    copy_s = time.perf_counter() - start
+    os.sync()
+    read_alone_s = _pool_seconds(_read_only, frames, workers)
+
+    size = f"{raw.width}x{raw.height}"
+    lines = [
+        f"{count} simulated {size} IMX219 DNG files ({input_mb / count:.1f} MB each), mode centre, "
+        f"{workers} workers; median ms per frame, one thread, for the split",
+        "",
+        f"  baselines: read one DNG {read_ms:.0f} ms; correct it {correct_ms:.0f} ms (float32), {codes_ms:.0f} ms "
+        "(uint16 codes)",
+        f"  plain copy of the {count} inputs, one stream: {copy_s:.2f} s, {input_mb / copy_s:.0f} MB/s",
+        f"  reading the {count} inputs alone, {workers} workers: {read_alone_s:.2f} s, "
+        f"{count / read_alone_s:.1f} files/s, {input_mb / read_alone_s:.0f} MB/s",
+        "",
+        f"  {'format':<17} {'read':>5} {'corr':>5} {'write':>6} {'sum':>6} {'cpu':>6} {'write alone':>12} "
+        f"{'n':>3} {'batch s':>7} {'ms/file':>8} {'files/s':>8} {'MB/s in':>8} {'MB/s out':>9} {'x slower':>9}",
+    ]
+    verdict: list[str] | None = None
+    for name in names:
+        output_format = FORMATS[name][0]
+        codes = output_format == "uint16-tiff" and name != "ome-zarr"
+        stage_ms, stage_cpu = (codes_ms, codes_cpu) if codes else (correct_ms, correct_cpu)
+        out = folder / f"write-{name}"
+        out.mkdir()
+        targets = [out / f"f{i:02d}{OUTPUT_SUFFIXES[output_format]}" for i in range(count)]
+        tasks = [(name, target, i) for i, target in enumerate(targets)]
+        write_ms, write_cpu = _median_ms(_write_only, tasks[:WRITE_SAMPLES])
+        cpu_ms = read_cpu + stage_cpu + write_cpu
+        n = count if write_ms < SLOW_WRITE_MS else min(count, SLOW_FRAMES)  # a slow format: fewer files
+        os.sync()  # each timed phase starts with nothing left to write back to the disk
+        write_alone_s = _pool_seconds(_write_only, tasks[:n], workers)
+        shutil.rmtree(out)
+        os.sync()
+        batch_s, per_file_s, out_bytes = _batch(cal_path, frames[:n], folder / "batch", name, workers)
+        slower_alone = max(read_alone_s / count, write_alone_s / n)
+        ratio = per_file_s / slower_alone
+        lines.append(
+            f"  {name:<17} {read_ms:>5.0f} {stage_ms:>5.0f} {write_ms:>6.0f} {read_ms + stage_ms + write_ms:>6.0f} "
+            f"{cpu_ms:>6.0f} "
+            f"{1e3 * write_alone_s / n:>9.0f} ms {n:>3} {batch_s:>7.2f} {1e3 * per_file_s:>8.0f} "
+            f"{1 / per_file_s:>8.1f} "
+            f"{input_mb / count / per_file_s:>8.0f} {out_bytes / 1e6 / n / per_file_s:>9.0f} {ratio:>9.2f}"
+        )
+        if name == GOAL_FORMAT:
+            one_stream = max(read_ms, write_ms)
+            floor = cpu_ms / min(workers, os.cpu_count() or 1)
+            verdict = [
+                f"  goal: the batch to {GOAL_FORMAT} at most {GOAL:g}x the slower of reading alone and writing alone "
+                f"with the same {workers} workers ({1e3 * slower_alone:.0f} ms/file): {1e3 * per_file_s:.0f} ms/file, "
+                f"{ratio:.2f}x -- {_goal(ratio, GOAL)}",
+                f"  (against the slower stage alone in one stream, {one_stream:.0f} ms: "
+                f"{1e3 * per_file_s / one_stream:.2f}x; the CPU floor, the three stages' CPU time over the cores used, "
+                f"is {floor:.0f} ms/file: {1e3 * per_file_s / floor:.2f}x that)",
+            ]
+    lines += [
+        "",
+        "  read, corr, write, sum: ms per frame, each stage alone, called from one thread; cpu: their CPU ms (all "
+        "threads: the kernel and zstd use more than one); write alone: ms per file, the same "
+        f"arrays written by {workers} workers;",
+        f"  n: files in the batch and in writing alone ({SLOW_FRAMES} for formats slower than {SLOW_WRITE_MS:g} ms "
+        "to write);",
+        "  batch s: run_batch of the n files (the pool's start included); ms/file, files/s and MB/s: once running,",
+        "  from the first output finished to the last, over n - workers files; x slower: ms/file over the slower of",
+        "  reading alone and writing alone (per file, workers started beforehand).",
+    ]
+    if verdict is not None:
+        lines += ["", *verdict]
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=12, help="frames in a batch (more than the workers)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes of the batch and the baselines")
+    parser.add_argument(
+        "--format", action="append", choices=list(FORMATS), help="output format(s) to measure (default: all)"
+    )
+    args = parser.parse_args(argv)
+    if args.frames <= args.workers:
+        parser.error("--frames: more than --workers (the time per file leaves out each worker's first)")
+    print(f"picamcal {picamcal.__version__}: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start")
+    with tempfile.TemporaryDirectory(prefix="bench-batch-") as folder:
+        print("\n".join(bench(Path(folder), args.frames, args.workers, args.format or list(FORMATS))))
+    print(f"\nload average {os.getloadavg()[0]:.1f} at the end (these machines are shared)")
+
+
+if __name__ == "__main__":
+    main()
