@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import PicamcalError
 from ..modes import Mode, parse_mode
-from ..output import OUTPUT_FORMATS, SRGB_FORMATS, TIFF_FORMATS
+from ..output import BATCH_FORMATS, SRGB_FORMATS, TIFF_FORMATS
 from ..raw import HEADLESS_SUFFIXES, PATTERNS, PROCESSED_SUFFIXES, RAW_SUFFIXES
 
 #: Output compressions: ``zstd`` (TIFF: with the floating-point predictor; needs imagecodecs).
@@ -95,7 +95,7 @@ class BatchOptions:
         :func:`picamcal.export.isp.processed_inputs`). With raw inputs and an sRGB ``output_format``: the
         source of the colour matrix (its ``rpi.ccm``).
     output_format : str
-        One of :data:`picamcal.output.OUTPUT_FORMATS`; a zarr stack is float32 only. The sRGB formats of raw
+        One of :data:`picamcal.output.BATCH_FORMATS`; a zarr stack is float32 only. The sRGB formats of raw
         inputs use the colour matrix of :func:`picamcal.output.camera_to_srgb` (the ``tuning`` file's, else
         the image's own, else the identity; the identity in ``pure`` mode, whose output is the calibration's
         primaries); processed inputs are in the ISP's sRGB space already.
@@ -166,9 +166,9 @@ class BatchOptions:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mode", parse_mode(self.mode))
-        if self.output_format not in OUTPUT_FORMATS:
+        if self.output_format not in BATCH_FORMATS:
             raise PicamcalError(
-                f"unknown output format {self.output_format!r} (expected one of {', '.join(OUTPUT_FORMATS)})"
+                f"unknown output format {self.output_format!r} (expected one of {', '.join(BATCH_FORMATS)})"
             )
         if not self.processed and (self.white is not None or self.input_encoding is not None):
             raise BatchOptionError("{white} and {input_encoding} go with {processed}")
@@ -179,6 +179,13 @@ class BatchOptions:
             )
         if self.processed and self.binned:
             raise BatchOptionError("{binned} is for raw images")
+        if self.output_format == "dng-gainmap" and (self.processed or self.binned):
+            raise BatchOptionError(
+                "{output_format} dng-gainmap writes the raw mosaic with the flat field for a raw editor: "
+                + ("it needs raw images, not {processed}" if self.processed else "it has no {binned} form")
+            )
+        if self.output_format == "linear-dng" and self.binned:
+            raise BatchOptionError("{output_format} linear-dng is written at full resolution: drop {binned}")
         if self.zarr_path is not None and self.out_dir is None:
             object.__setattr__(self, "place", Path(self.zarr_path))
         elif self.out_dir is not None and self.zarr_path is None:
@@ -207,7 +214,7 @@ class BatchOptions:
         """The format, compression and pattern: unknown names, and combinations no output can hold."""
         if self.compression is not None and self.compression not in COMPRESSIONS:
             raise PicamcalError(f"unknown compression {self.compression!r} (expected one of {', '.join(COMPRESSIONS)})")
-        if self.zarr_path is not None and self.output_format != "float32-tiff":
+        if self.zarr_path is not None and self.output_format != "float32-tiff":  # dng formats included
             raise PicamcalError(
                 f"a zarr stack holds float32 only: write {self.output_format} files to a folder (--out)"
             )

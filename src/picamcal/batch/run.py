@@ -107,6 +107,10 @@ def run_batch(
     decode = _check_files(options)
     cal = load_calibration(calibration_path)
     cal.check_mode(options.mode)  # a flat-field calibration has no centre or pure mode: say so before any work
+    if options.output_format == "dng-gainmap":  # a flat field beyond the opcode's gains: say so before any work
+        from ..raw import flat_field_gain_map
+
+        flat_field_gain_map(cal)
     if options.processed:
         _check_processed_references(options.white, options.tuning, decode)
     settings = _settings(calibration_path, options, decode)

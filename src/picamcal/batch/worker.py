@@ -22,9 +22,9 @@ from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..export.isp import processed_inputs
 from ..export.tuning import load_tuning
 from ..modes import Mode
-from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
+from ..output import DNG_FORMATS, SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
 from ..output.ome_zarr import write_frame
-from ..raw import RawImage, read_raw
+from ..raw import RawImage, read_raw, write_dng, write_linear_dng
 from ..raw.processed import ProcessedImage, read_processed
 from ..records import sha256_file
 from .disk import PLACE_ERRORS
@@ -48,7 +48,7 @@ class Settings:
     white: str | None
     tuning: str | None
     compression: str | None
-    output_format: str  # one of picamcal.output.OUTPUT_FORMATS
+    output_format: str  # one of picamcal.output.BATCH_FORMATS
     overwrite: bool
     zarr_array: str | None  # absolute path of the stack's array, or None for image files
     mosaic: tuple[int, int] | None = None  # (columns, rows): frame i is the tile at row, column = divmod(i, columns)
@@ -173,6 +173,8 @@ class _Stages:
             return _correct_processed(image, cal, settings), {}
         if settings.binned:
             return correct(image, cal, mode=settings.mode, binned=True), image.metadata
+        if settings.output_format == "dng-gainmap":  # the mosaic goes out unchanged, the flat field as opcodes
+            return image.bayer, {"raw": image}
         # uint16-tiff codes straight from the kernel: no float32 image at full resolution to encode afterwards
         dtype = np.uint16 if settings.output_format == "uint16-tiff" else np.float32
         slot.array = correct(image, cal, mode=settings.mode, out=slot.array, dtype=dtype)
@@ -199,6 +201,9 @@ def _tuning(path: str) -> dict[str, Any]:
 
 
 def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any]) -> None:
+    if settings.output_format in DNG_FORMATS:
+        _write_dng(settings, job, rgb, source_metadata)
+        return
     if settings.zarr_array is not None:
         write_frame(settings.zarr_array, job.index, rgb, settings.mosaic, source=job.source)
         return
@@ -220,6 +225,26 @@ def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[
         colour_matrix=_colour_matrix(settings, source_metadata) if settings.output_format in SRGB_FORMATS else None,
         overwrite=settings.overwrite,
         compression=settings.compression,
+    )
+
+
+def _write_dng(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any]) -> None:
+    """``dng-gainmap``: the raw frame unchanged with the calibration's flat field as GainMap opcodes; ``linear-dng``:
+    the corrected image as a LinearRaw DNG with the source's colour (docs/dng.md)."""
+    if job.target is None:
+        raise OutputError("has no output file planned (a zarr frame sent to a folder batch)", job.source)
+    cal = calibration_of(settings)
+    if settings.output_format == "dng-gainmap":
+        write_dng(job.target, source_metadata["raw"], overwrite=settings.overwrite, gain_map=cal)
+        return
+    raw_metadata = {} if settings.processed else source_metadata
+    write_linear_dng(
+        job.target,
+        rgb,
+        metadata=raw_metadata or None,
+        sensor=cal.sensor,
+        to_camera=cal.centre_response if settings.mode == Mode.PURE else None,
+        overwrite=settings.overwrite,
     )
 
 

@@ -212,7 +212,8 @@ def correct_cmd(
         str,
         typer.Option(
             help="float32-tiff (linear, white = 1.0), uint16-tiff (linear, scale in the metadata), srgb-png, "
-            "srgb-png16 or srgb-jpeg (colour-managed, to look at)."
+            "srgb-png16 or srgb-jpeg (colour-managed, to look at); for raw editors: linear-dng (the corrected "
+            "image) or dng-gainmap (the raw frame unchanged, the flat field as DNG GainMap opcodes)."
         ),
     ] = "float32-tiff",
     pattern: PatternOption = None,
@@ -250,10 +251,10 @@ def correct_cmd(
     the others (exit status 1).
     """
     from ..batch import BatchOptionError, BatchOptions, run_batch
-    from ..output import OUTPUT_FORMATS
+    from ..output import BATCH_FORMATS
 
     mode = parse_mode_option(mode)
-    output_format = choice(output_format, OUTPUT_FORMATS, "--output-format")
+    output_format = choice(output_format, BATCH_FORMATS, "--output-format")
     try:
         options = BatchOptions(
             out_dir=out,

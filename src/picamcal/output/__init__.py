@@ -42,9 +42,19 @@ from .colour import (
 from .provenance import is_picamcal_output
 from .srgb import JPEG_QUALITY, SRGB_FORMATS
 from .tiff import TIFF_FORMATS, UINT16_WHITE, encode_uint16
-from .write import OUTPUT_FORMATS, OUTPUT_SUFFIXES, output_bytes, write_corrected, write_rgb_tiff
+from .write import (
+    BATCH_FORMATS,
+    DNG_FORMATS,
+    OUTPUT_FORMATS,
+    OUTPUT_SUFFIXES,
+    output_bytes,
+    write_corrected,
+    write_rgb_tiff,
+)
 
 __all__ = [
+    "BATCH_FORMATS",
+    "DNG_FORMATS",
     "JPEG_QUALITY",
     "NO_MATRIX",
     "OUTPUT_FORMATS",

@@ -14,10 +14,15 @@ from .colour import SRGB_WHITE_LEVEL, ColourMatrix, check_rgb
 from .srgb import SRGB_FORMATS, SRGB_SUFFIXES, write_srgb
 from .tiff import TIFF_FORMATS, TIFF_SUFFIX, write_tiff
 
-#: What ``picamcal correct --output-format`` writes: linear float32 or uint16 TIFF, or colour-managed sRGB images.
+#: DNG outputs for raw editors: the corrected image as a linear DNG (any mode), or the raw mosaic unchanged with
+#: the calibration's flat field as GainMap opcodes (docs/dng.md).
+DNG_FORMATS = ("linear-dng", "dng-gainmap")
+#: What :func:`write_corrected` writes: linear float32 or uint16 TIFF, or colour-managed sRGB images.
 OUTPUT_FORMATS = TIFF_FORMATS + SRGB_FORMATS
+#: What ``picamcal correct --output-format`` writes: those, and DNG for raw editors (by :mod:`picamcal.raw.dng`).
+BATCH_FORMATS = OUTPUT_FORMATS + DNG_FORMATS
 #: File name suffix of each format.
-OUTPUT_SUFFIXES = {**dict.fromkeys(TIFF_FORMATS, TIFF_SUFFIX), **SRGB_SUFFIXES}
+OUTPUT_SUFFIXES = {**dict.fromkeys(TIFF_FORMATS, TIFF_SUFFIX), **SRGB_SUFFIXES, **dict.fromkeys(DNG_FORMATS, ".dng")}
 
 
 def output_bytes(output_format: str, shape: tuple[int, ...]) -> int:
@@ -30,7 +35,9 @@ def output_bytes(output_format: str, shape: tuple[int, ...]) -> int:
     >>> output_bytes("uint16-tiff", (3040, 4056, 3))
     73981440
     """
-    per_sample = {"float32-tiff": 4, "uint16-tiff": 2, "srgb-png16": 2}.get(output_format, 1)
+    if output_format == "dng-gainmap":  # the mosaic: one 16-bit sample per pixel
+        return int(np.prod(shape[:2])) * 2
+    per_sample = {"float32-tiff": 4, "uint16-tiff": 2, "srgb-png16": 2, "linear-dng": 2}.get(output_format, 1)
     return int(np.prod(shape)) * per_sample
 
 
@@ -134,4 +141,12 @@ def write_rgb_tiff(
     return write_corrected(path, rgb, "float32-tiff", metadata, overwrite=overwrite, compression=compression)
 
 
-__all__ = ["OUTPUT_FORMATS", "OUTPUT_SUFFIXES", "output_bytes", "write_corrected", "write_rgb_tiff"]
+__all__ = [
+    "BATCH_FORMATS",
+    "DNG_FORMATS",
+    "OUTPUT_FORMATS",
+    "OUTPUT_SUFFIXES",
+    "output_bytes",
+    "write_corrected",
+    "write_rgb_tiff",
+]

@@ -214,5 +214,6 @@ def _ifd0_entries(
         entry(ILLUMINANT1, SHORT, colour["illuminant"]),
     ]
     if colour["forward"] is not None:
-        entries.append(entry(FORWARD_MATRIX1, SRATIONAL, (np.asarray(colour["forward"]) @ to_camera).ravel()))
+        forward = np.asarray(colour["forward"], dtype=np.float64).reshape(3, 3)  # a read DNG gives it flat
+        entries.append(entry(FORWARD_MATRIX1, SRATIONAL, (forward @ to_camera).ravel()))
     return entries
