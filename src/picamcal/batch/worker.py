@@ -22,9 +22,9 @@ from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..export.isp import processed_inputs
 from ..export.tuning import load_tuning
 from ..modes import Mode
-from ..output import DNG_FORMATS, SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
+from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
 from ..output.ome_zarr import write_frame
-from ..raw import RawImage, read_raw, write_dng, write_linear_dng
+from ..raw import RawImage, flat_field_gain_map, read_raw, write_dng, write_linear_dng
 from ..raw.processed import ProcessedImage, read_processed
 from ..records import sha256_file
 from .disk import PLACE_ERRORS
@@ -165,7 +165,7 @@ class _Stages:
         cal = self.calibration
         return read_raw(Path(job.source), **self.settings.read_options, expected_shape=(cal.height, cal.width))
 
-    def correct(self, image: RawImage | ProcessedImage, slot: Slot) -> tuple[np.ndarray, dict[str, Any]]:
+    def correct(self, image: RawImage | ProcessedImage, slot: Slot) -> tuple[np.ndarray | RawImage, dict[str, Any]]:
         """The corrected image (into the slot's array when the kernel can reuse it), and the metadata its colour
         matrix comes from (the raw's; none for processed images)."""
         settings, cal = self.settings, self.calibration
@@ -173,15 +173,21 @@ class _Stages:
             return _correct_processed(image, cal, settings), {}
         if settings.binned:
             return correct(image, cal, mode=settings.mode, binned=True), image.metadata
-        if settings.output_format == "dng-gainmap":  # the mosaic goes out unchanged, the flat field as opcodes
-            return image.bayer, {"raw": image}
+        if settings.output_format == "dng-gainmap":  # the frame goes out unchanged, the flat field as opcodes
+            return image, image.metadata
         # uint16-tiff codes straight from the kernel: no float32 image at full resolution to encode afterwards
         dtype = np.uint16 if settings.output_format == "uint16-tiff" else np.float32
         slot.array = correct(image, cal, mode=settings.mode, out=slot.array, dtype=dtype)
         return slot.array, image.metadata
 
-    def write(self, job: Job, corrected: tuple[np.ndarray, dict[str, Any]]) -> None:
-        _write(self.settings, job, *corrected)
+    def write(self, job: Job, corrected: tuple[np.ndarray | RawImage, dict[str, Any]]) -> None:
+        image, source_metadata = corrected
+        if isinstance(image, RawImage):  # dng-gainmap
+            _write_gain_map_dng(self.settings, job, image, self.calibration)
+        elif self.settings.output_format == "linear-dng":
+            _write_linear_dng(self.settings, job, image, source_metadata, self.calibration)
+        else:
+            _write(self.settings, job, image, source_metadata)
 
 
 def _correct_processed(image: ProcessedImage, cal: Calibration, settings: Settings) -> np.ndarray:
@@ -201,14 +207,9 @@ def _tuning(path: str) -> dict[str, Any]:
 
 
 def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any]) -> None:
-    if settings.output_format in DNG_FORMATS:
-        _write_dng(settings, job, rgb, source_metadata)
-        return
     if settings.zarr_array is not None:
         write_frame(settings.zarr_array, job.index, rgb, settings.mosaic, source=job.source)
         return
-    if job.target is None:
-        raise OutputError("has no output file planned (a zarr frame sent to a folder batch)", job.source)
     info: dict[str, Any] = {
         "source": Path(job.source).name,
         "calibration": Path(settings.calibration).name,
@@ -218,7 +219,7 @@ def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[
     if settings.processed:
         info["input_encoding"] = settings.input_encoding
     write_corrected(
-        job.target,
+        _target(job),
         rgb,
         settings.output_format,
         info,
@@ -228,20 +229,27 @@ def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[
     )
 
 
-def _write_dng(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any]) -> None:
-    """``dng-gainmap``: the raw frame unchanged with the calibration's flat field as GainMap opcodes; ``linear-dng``:
-    the corrected image as a LinearRaw DNG with the source's colour (docs/dng.md)."""
+def _target(job: Job) -> str:
     if job.target is None:
         raise OutputError("has no output file planned (a zarr frame sent to a folder batch)", job.source)
-    cal = calibration_of(settings)
-    if settings.output_format == "dng-gainmap":
-        write_dng(job.target, source_metadata["raw"], overwrite=settings.overwrite, gain_map=cal)
-        return
-    raw_metadata = {} if settings.processed else source_metadata
+    return job.target
+
+
+def _write_gain_map_dng(settings: Settings, job: Job, raw: RawImage, cal: Calibration) -> None:
+    """``dng-gainmap``: the raw frame unchanged, the calibration's flat field as GainMap opcodes (docs/dng.md); the
+    gain map is made once per worker."""
+    key = ("gain map", settings.calibration, settings.calibration_sha256)
+    write_dng(_target(job), raw, overwrite=settings.overwrite, gain_map=_cached(key, lambda: flat_field_gain_map(cal)))
+
+
+def _write_linear_dng(
+    settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any], cal: Calibration
+) -> None:
+    """``linear-dng``: the corrected image as a LinearRaw DNG with the source's colour (docs/dng.md)."""
     write_linear_dng(
-        job.target,
+        _target(job),
         rgb,
-        metadata=raw_metadata or None,
+        metadata=None if settings.processed else source_metadata or None,
         sensor=cal.sensor,
         to_camera=cal.centre_response if settings.mode == Mode.PURE else None,
         overwrite=settings.overwrite,

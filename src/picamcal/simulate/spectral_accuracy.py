@@ -72,6 +72,7 @@ __all__ = [
     "processed_target",
     "score_target",
     "target_truth",
+    "unmixing_residual",
 ]
 
 #: How a workflow calibrates: ``jig`` (the LED references at normal incidence, whatever the target's lens),
@@ -182,11 +183,23 @@ def floor_residual(camera: SpectralCamera, calibration: Calibration, scene: Targ
     >>> floor_residual(camera, cal, target_scene(camera, "led"))["max_delta_e"] < 1e-3
     True
     """
+    flat, truth = target_truth(camera, calibration, scene)
+    return unmixing_residual(flat, truth, least_squares_unmixing(flat, truth))
+
+
+def unmixing_residual(flat: np.ndarray, truth: np.ndarray, unmixing: np.ndarray) -> dict[str, float]:
+    """CIEDE2000 of the bin responses ``flat`` (:func:`target_truth`) mapped by a per-bin ``unmixing`` against their
+    ``truth``: mean and max (:func:`floor_residual` for the floor's field, computed once).
+
+    Examples
+    --------
+    >>> flat = np.ones((2, 3, 4, 3)); truth = np.ones((2, 3))
+    >>> unmixing_residual(flat, truth, np.broadcast_to(np.eye(3), (3, 4, 3, 3)))["max_delta_e"]
+    0.0
+    """
     from ..analysis.metrics import delta_e2000
 
-    flat, truth = target_truth(camera, calibration, scene)
-    x = least_squares_unmixing(flat, truth)
-    mapped = np.einsum("yxpq,kyxq->kyxp", x, flat)
+    mapped = np.einsum("yxpq,kyxq->kyxp", unmixing, flat)
     delta_e = delta_e2000(mapped, truth[:, None, None, :])
     return {"mean_delta_e": float(delta_e.mean()), "max_delta_e": float(delta_e.max())}
 
@@ -381,13 +394,15 @@ def measure_workflow(
         scores = {
             mode: score_target(correct(raw, cal, mode), scene) for mode in modes if mode in {m.value for m in cal.modes}
         }
-    best = floor_calibration(cal, floor_unmixing(camera, cal, scene))
+    flat, truth = target_truth(camera, cal, scene)  # once, for the floor's field and its residual
+    floor = least_squares_unmixing(flat, truth)
+    best = floor_calibration(cal, floor.astype(np.float32))
     penalty = cal.noise_penalty("centre" if cal.has_unmixing else "flat")
     return {
         "workflow": {"calibration": calibration, "target": target, "lens": lens},
         "modes": scores,
         "floor": score_target(correct(raw, best, "centre"), scene),
-        "floor_residual": floor_residual(camera, cal, scene),
+        "floor_residual": unmixing_residual(flat, truth, floor),
         "noise_penalty": {"max": float(penalty.max()), "mean": float(penalty.mean())},
     }
 

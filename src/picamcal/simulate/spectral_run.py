@@ -32,7 +32,13 @@ from ..references import ROLES
 from .run import RAW_WRITERS, _write_json, check_run_outputs
 from .scenes import check_seed, stream
 from .spectral import LENSES, SpectralCamera, least_squares_unmixing, make_spectral_camera, render_spectral
-from .spectral_accuracy import calibrate_references, floor_calibration, floor_residual, score_target, target_truth
+from .spectral_accuracy import (
+    calibrate_references,
+    floor_calibration,
+    score_target,
+    target_truth,
+    unmixing_residual,
+)
 from .spectral_scenes import (
     SECONDARY_COLOURS,
     SOURCES,
@@ -204,12 +210,13 @@ def _truth(
         white = render_spectral(camera, target_white(scene.kind), noise=False, scene="white")
         cal = calibrate_in_situ(white, cal)
     flat, truth = target_truth(camera, cal, scene)
-    floor = least_squares_unmixing(flat, truth).astype(np.float32)
+    fitted = least_squares_unmixing(flat, truth)
+    floor = fitted.astype(np.float32)
     raw, _ = spectral_target(camera, scene.kind, noise=False)
     arrays = {"target_flat": flat, "target_truth": truth, "floor_unmixing": floor, "site_white": cal.site_white}
     scores = {
         "floor": score_target(correct(raw, floor_calibration(cal, floor), "centre"), scene),
-        "floor_residual": floor_residual(camera, cal, scene),
+        "floor_residual": unmixing_residual(flat, truth, fitted),
         "noiseless_centre": score_target(correct(raw, cal, "centre"), scene),
     }
     return arrays, scores
