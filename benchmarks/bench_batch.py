@@ -6,9 +6,10 @@ Simulated 8 MP IMX219 frames are written once as DNG files into a temporary fold
 this one run:
 
 - the split of one frame's time, each stage alone in one thread (median over the frames): reading the DNG
-  (``picamcal.read_raw``, rawpy), correcting it (``picamcal.correct``, mode centre, into a reused output; the
-  uint16 formats straight to codes, ``dtype=np.uint16``) and writing it in each output format (float32 TIFF,
-  uint16 TIFF, uint16 zstd TIFF, sRGB PNG 8 and 16 bit, sRGB JPEG, one frame of an OME-Zarr stack);
+  (``picamcal.read_raw``: plain DNGs, as rpicam-still's, from their strips), correcting it (``picamcal.correct``,
+  mode centre, into a reused output; the uint16 formats straight to codes, ``dtype=np.uint16``) and writing it in
+  each output format (float32 TIFF, uint16 TIFF, uint16 zstd TIFF, sRGB PNG 8 and 16 bit, sRGB JPEG, one frame
+  of an OME-Zarr stack);
 - the whole batch, ``run_batch`` with the given workers, for each format: its wall time (the pool's start
   included), and its time per file once running (from the first output finished to the last, over the
   ``n - workers`` files finished after each worker's first), in files/s and MB/s of input and of output;

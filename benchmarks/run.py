@@ -50,7 +50,7 @@ def bench_calibration(sensor: str, repeats: int, folder: Path) -> list[tuple[str
     from_decoded = median_time(lambda: picamcal.calibrate(**decoded), repeats)
     return [
         (f"copy of the five {size} mosaics (baseline)", copy, "1.0"),
-        ("read the five DNG files (rawpy)", read, f"{read / copy:.1f}"),
+        ("read the five DNG files (read_raw)", read, f"{read / copy:.1f}"),
         ("calibrate from the five DNG files, reading included", from_files, f"{from_files / copy:.1f}"),
         ("calibrate from decoded references", from_decoded, f"{from_decoded / copy:.1f}"),
     ]
@@ -72,6 +72,7 @@ def bench_calibration_12mp(repeats: int, folder: Path) -> list[tuple[str, float,
 
 def bench_reading(sensor: str, repeats: int, folder: Path) -> list[tuple[str, float, str]]:
     from picamcal.raw import from_picamera2, to_picamera2
+    from picamcal.raw.dng.libraw import decode
     from picamcal.simulate import make_camera, simulate_references
 
     raw = simulate_references(make_camera(sensor), seed=0)["white"]
@@ -81,7 +82,8 @@ def bench_reading(sensor: str, repeats: int, folder: Path) -> list[tuple[str, fl
     copy = median_time(lambda: raw.bayer.copy(), repeats)
     rows = [(f"copy of one {raw.width}x{raw.height} mosaic (baseline)", copy, "1.0")]
     for name, fn in (
-        ("read the DNG file (rawpy)", lambda: picamcal.read_raw(dng)),
+        ("read the DNG file (read_raw: a plain DNG, from its strips)", lambda: picamcal.read_raw(dng)),
+        ("decode the same DNG with LibRaw, as any other DNG", lambda: decode(dng, None, [])),
         ("read the legacy JPEG+BRCM file", lambda: picamcal.read_raw(brcm)),
         (f"decode the picamera2 {config['raw']['format']} buffer", lambda: from_picamera2(buffer, config, metadata)),
     ):

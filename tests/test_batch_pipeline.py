@@ -14,7 +14,7 @@ import tifffile
 from conftest import simulated_calibration
 from picamcal import PicamcalWarning
 from picamcal.batch import BatchOptions, run_batch
-from picamcal.batch.pipeline import OUTPUT_SLOTS, READ_AHEAD, overlapped
+from picamcal.batch.pipeline import OUTPUT_SLOTS, READ_AHEAD, SlotPool, overlapped
 from picamcal.calibration import load_calibration
 from picamcal.correct import correct
 from picamcal.output import OUTPUT_SUFFIXES, camera_to_srgb, write_corrected
@@ -77,6 +77,38 @@ def test_the_overlapped_pipeline_writes_the_bytes_of_a_serial_correction(data, t
     assert result.done == frames and result.failed == []
     expected = {p.name: p.read_bytes() for p in sorted((tmp_path / "serial").iterdir())}
     assert {p.name: p.read_bytes() for p in sorted((tmp_path / "batch").iterdir())} == expected  # byte for byte
+
+
+def test_a_workers_next_task_corrects_into_the_output_arrays_of_its_last(data, tmp_path, monkeypatch):
+    """Fresh memory is dear: the output slots outlive a task, so a worker's next one allocates no output array."""
+    from picamcal.batch import worker
+
+    outs: list[np.ndarray | None] = []
+    real_correct = worker.correct
+
+    def recording(*args, out=None, **kwargs):
+        outs.append(out)
+        return real_correct(*args, out=out, **kwargs)
+
+    monkeypatch.setattr(worker, "correct", recording)
+    frames = sorted(data["frames"].iterdir())
+    for name in ("first", "second"):
+        options = BatchOptions(out_dir=tmp_path / name, output_format="uint16-tiff", workers=0)
+        assert run_batch(data["cal"], frames, options).done == frames
+    second = outs[FRAMES:]
+    assert all(out is not None for out in second) and len({id(out) for out in second}) == OUTPUT_SLOTS
+    assert [p.read_bytes() for p in sorted((tmp_path / "second").iterdir())] == [
+        p.read_bytes() for p in sorted((tmp_path / "first").iterdir())
+    ]
+
+
+def test_runs_at_once_in_one_process_take_slots_of_their_own():
+    pool = SlotPool(keep=1)
+    with pool.taken() as first, pool.taken() as second:
+        assert len(first) == len(second) == OUTPUT_SLOTS
+        assert not {id(slot) for slot in first} & {id(slot) for slot in second}
+    with pool.taken() as again:
+        assert again is first or again is second  # one set kept, the other let go
 
 
 @pytest.mark.slow

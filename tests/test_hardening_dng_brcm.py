@@ -258,11 +258,6 @@ DNG_ERRORS = {
     "no DNGVersion": (lambda d: _renamed(d, 50706), "no DNGVersion tag"),
     "IFD past the end": (lambda d: d[:4] + struct.pack("<I", len(d) + 8) + d[8:], "IFD 0 (bytes"),
     "not TIFF": (lambda d: b"II+\x00" + d[4:], "no TIFF header"),
-    # Informative, but LibRaw gives up on the file ("Input/output error"): the error says what picamcal found.
-    "EXIF IFD past the end": (
-        lambda d: rewrite(d, _entry(d, 34665), value=2**31),
-        "malformed: corrupt TIFF/DNG structure",
-    ),
 }
 
 
@@ -293,6 +288,7 @@ DNG_WARNINGS = {
     "Illuminant of 2 values": (lambda d: rewrite(d, _entry(d, 50778), count=2), "calibration_illuminant1", "Illum"),
     "ISO 0": (lambda d: rewrite(d, _entry(d, 34855), value=0), "iso", "ISOSpeedRatings must be positive"),
     "Model past the end": (lambda d: rewrite(d, _entry(d, 272), value=2**31), "model", "DNG tag Model"),
+    "EXIF IFD past the end": (lambda d: rewrite(d, _entry(d, 34665), value=2**31), None, "the EXIF IFD (bytes"),
 }
 
 
@@ -306,6 +302,28 @@ def test_malformed_informative_metadata_is_left_out_with_one_warning(tmp_path, d
     assert len(caught) == 1 and fragment in str(caught[0].message) and str(path) in str(caught[0].message)
     assert key is None or key not in raw.metadata
     np.testing.assert_array_equal(raw.bayer, _mosaic())
+
+
+def test_libraw_giving_up_is_told_with_the_malformed_metadata_picamcal_found(tmp_path, capfd, dngs):
+    # LibRaw gives up on a compressed DNG whose EXIF IFD lies past the end with nothing but "Input/output error":
+    # the error adds what picamcal found.
+    path = tmp_path / "bad.dng"
+    tifffile.imwrite(
+        path,
+        iter([imagecodecs.ljpeg_encode(_mosaic(), bitspersample=10)]),
+        shape=(HEIGHT, WIDTH),
+        dtype=np.uint16,
+        photometric=32803,
+        compression=7,
+        extratags=[*MINIMAL_TAGS, (34664, 4, 1, 2**31, True)],  # tifffile writes no ExifIFD tag: renamed below
+        metadata=None,
+    )
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<H", data, _entry(bytes(data), 34664), 34665)
+    path.write_bytes(bytes(data))
+    error = outcome(read_dng, path, capfd)
+    assert isinstance(error, RawFormatError), error
+    assert "LibRaw cannot read it" in error.problem and "malformed: corrupt TIFF/DNG structure" in error.problem
 
 
 @pytest.mark.parametrize(

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import functools
 import importlib.util
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -164,21 +164,43 @@ def output_array(out: np.ndarray | None, height: int, width: int, dtype: DTypeLi
     >>> output_array(None, 4, 6).shape, output_array(None, 4, 6, np.uint16).shape
     ((4, 6, 3), (3, 4, 6))
     """
-    kind = np.dtype(dtype)
-    if kind == np.float32:
-        shape: tuple[int, ...] = (height, width, 3)
-    elif kind == np.uint16:
-        shape = (3, height, width)
-    else:
-        raise ValueError(f"the corrected image is float32 or uint16 codes, not {kind}")
+    kind, shape = np.dtype(dtype), _output_shape(height, width, dtype)
     if out is None:
         return np.empty(shape, dtype=kind)
-    if out.shape != shape or out.dtype != kind or not out.flags.c_contiguous or not out.flags.writeable:
+    if not fits(out, height, width, dtype):
         raise OutputError(
             f"out must be a writeable C-contiguous {kind} array of shape {shape}, not {out.dtype} {out.shape}: "
             "pass one of that shape, or none"
         )
     return out
+
+
+def _output_shape(height: int, width: int, dtype: DTypeLike) -> tuple[int, ...]:
+    kind = np.dtype(dtype)
+    if kind == np.float32:
+        return (height, width, 3)
+    if kind == np.uint16:
+        return (3, height, width)
+    raise ValueError(f"the corrected image is float32 or uint16 codes, not {kind}")
+
+
+def fits(out: Any, height: int, width: int, dtype: DTypeLike = np.float32) -> bool:
+    """Whether ``out`` can take the corrected image of a ``height`` x ``width`` mosaic (:func:`output_array`).
+
+    Examples
+    --------
+    >>> fits(np.empty((4, 6, 3), np.float32), 4, 6), fits(np.empty((4, 6, 3), np.float32), 4, 6, np.uint16)
+    (True, False)
+    >>> fits(None, 4, 6)
+    False
+    """
+    return (
+        isinstance(out, np.ndarray)
+        and out.shape == _output_shape(height, width, dtype)
+        and out.dtype == np.dtype(dtype)
+        and out.flags.c_contiguous
+        and out.flags.writeable
+    )
 
 
 def encode_codes(rgb: np.ndarray, scale: float, out: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ dask) and :mod:`~picamcal.batch.run` (:func:`run_batch` itself).
 What it guarantees:
 
 - **Overlapped stages.** Each worker reads the next file and writes the last one while it corrects one, in
-  threads (LibRaw's decoding, the kernel, compression and file writes release the GIL), so that a file costs
-  about its slowest stage rather than the sum (:mod:`~picamcal.batch.pipeline`). A pool or cluster gets the
+  threads (file reads and LibRaw's decoding, the kernel, compression and file writes release the GIL), so that a
+  file costs about its slowest stage rather than the sum (:mod:`~picamcal.batch.pipeline`). A pool or cluster gets the
   files in tasks of a few consecutive files (:func:`~picamcal.batch.executors.chunks`).
 - **Bounded memory.** A worker holds at most two corrected images and two decoded inputs
   (:data:`~picamcal.batch.pipeline.OUTPUT_SLOTS`, :data:`~picamcal.batch.pipeline.READ_AHEAD`), whatever the

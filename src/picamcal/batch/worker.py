@@ -21,6 +21,7 @@ from ..correct import correct, correct_processed
 from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..export.isp import processed_inputs
 from ..export.tuning import load_tuning
+from ..kernels import fits
 from ..modes import Mode
 from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
 from ..output.ome_zarr import write_frame
@@ -28,7 +29,7 @@ from ..raw import RawImage, flat_field_gain_map, read_raw, write_dng, write_line
 from ..raw.processed import ProcessedImage, read_processed
 from ..records import sha256_file
 from .disk import PLACE_ERRORS
-from .pipeline import Finished, Slot, overlapped
+from .pipeline import Finished, Slot, SlotPool, overlapped
 
 _T = TypeVar("_T")
 
@@ -75,6 +76,8 @@ class Outcome:
 
 #: Per worker process: what was loaded once (calibration, white reference, tuning), keyed by what identifies it.
 _CACHE: dict[tuple, Any] = {}
+#: Per worker process: the output slots, kept from one task to the next.
+_SLOTS = SlotPool()
 
 
 def _cached(key: tuple, load: Callable[[], _T]) -> _T:
@@ -127,8 +130,9 @@ def outcomes(settings: Settings, jobs: Sequence[Job]) -> Iterator[Outcome]:
         yield from (Outcome(job.index, str(exc)) for job in jobs)
         return
     stages = _Stages(settings)
-    for finished in overlapped(jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error):
-        yield _outcome(finished)
+    with _SLOTS.taken() as slots:
+        for finished in overlapped(jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error, slots=slots):
+            yield _outcome(finished)
 
 
 def _outcome(finished: Finished[Job]) -> Outcome:
@@ -177,7 +181,8 @@ class _Stages:
             return image, image.metadata
         # uint16-tiff codes straight from the kernel: no float32 image at full resolution to encode afterwards
         dtype = np.uint16 if settings.output_format == "uint16-tiff" else np.float32
-        slot.array = correct(image, cal, mode=settings.mode, out=slot.array, dtype=dtype)
+        out = slot.array if fits(slot.array, image.height, image.width, dtype) else None  # an earlier batch's size
+        slot.array = correct(image, cal, mode=settings.mode, out=out, dtype=dtype)
         return slot.array, image.metadata
 
     def write(self, job: Job, corrected: tuple[np.ndarray | RawImage, dict[str, Any]]) -> None:

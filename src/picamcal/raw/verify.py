@@ -23,7 +23,9 @@ _EVIDENCE = 2.5
 def site_disagreement(raw: RawImage, max_rows: int = 256) -> tuple[float, float]:
     """Relative mean difference between the two sites of each diagonal, ((0,0)-(1,1), (0,1)-(1,0)).
 
-    Uses up to ``max_rows`` evenly spaced rows of 2x2 blocks, so it costs little on large frames.
+    Uses a grid of up to ``max_rows`` x ``max_rows`` evenly spaced 2x2 blocks (65 536: the mean of a block's
+    difference is known to a fraction of a percent), so that it costs a read of a 12 MP frame well under a
+    millisecond.
 
     Examples
     --------
@@ -31,8 +33,9 @@ def site_disagreement(raw: RawImage, max_rows: int = 256) -> tuple[float, float]
     >>> [round(d, 3) for d in site_disagreement(RawImage(bayer, "BGGR", 64, 1023, 10))]
     [0.269, 0.0]
     """
-    step = max(1, raw.height // 2 // max_rows)
-    blocks = raw.bayer.reshape(raw.height // 2, 2, raw.width // 2, 2)[::step].astype(np.float32)
+    rows, columns = raw.height // 2, raw.width // 2
+    step_y, step_x = max(1, rows // max_rows), max(1, columns // max_rows)
+    blocks = raw.bayer.reshape(rows, 2, columns, 2)[::step_y, :, ::step_x].astype(np.float32)
     # An unknown (NaN) black level is taken as 0 here: the two greens still agree far better than other sites.
     black = np.nan_to_num(np.asarray(raw.black_level, dtype=np.float32), nan=0.0).reshape(2, 2)
     sites = [blocks[:, sy, :, sx] - black[sy, sx] for sy in (0, 1) for sx in (0, 1)]

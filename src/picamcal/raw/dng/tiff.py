@@ -8,13 +8,14 @@ its offset).
 
 from __future__ import annotations
 
+import io
 import math
 import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from ...errors import OutputError, RawFormatError, one_line, short
 from .tags import (
@@ -80,7 +81,7 @@ class TiffFile:
     picamcal.errors.RawFormatError: x.dng: DNG tag Make is of type ASCII, not SHORT
     """
 
-    def __init__(self, f: IO[bytes], size: int, path: Path) -> None:
+    def __init__(self, f: io.BufferedIOBase, size: int, path: Path) -> None:
         self.f, self.size, self.path = f, size, path
         head = self.read(0, 8, "the TIFF header")
         orders = {b"II*\x00": "<", b"MM\x00*": ">"}
