@@ -1,6 +1,6 @@
 """A folder of raw frames to corrected files: where a batch's time goes, and how close it comes to the disk.
 
-Usage: python3 benchmarks/bench_batch.py [--frames 12] [--workers 2] [--format uint16-tiff+zstd ...]
+Usage: python3 benchmarks/bench_batch.py [--frames 24] [--workers 2] [--format uint16-tiff+zstd ...]
 
 Simulated 8 MP IMX219 frames are written once as DNG files into a temporary folder (not timed). Then, all in
 this one run:
@@ -259,7 +259,7 @@ def bench(folder: Path, count: int, workers: int, names: Sequence[str]) -> list[
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=12, help="frames in a batch (more than the workers)")
+    parser.add_argument("--frames", type=int, default=24, help="frames in a batch (more than the workers)")
     parser.add_argument("--workers", type=int, default=2, help="worker processes of the batch and the baselines")
     parser.add_argument(
         "--format", action="append", choices=list(FORMATS), help="output format(s) to measure (default: all)"
