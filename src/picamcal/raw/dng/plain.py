@@ -1,12 +1,13 @@
-"""The plain DNGs of the Raspberry Pi's own tools, read straight from their strips instead of by LibRaw.
+"""Plain DNGs (rpicam-still's, picamcal's), read straight from their strips instead of by LibRaw.
 
-rpicam-still, picamera2 (PiDNG) and picamcal write the mosaic the same plain way: uncompressed 16-bit samples in
-strips, a 1x1 or 2x2 whole-number BlackLevel and a WhiteLevel. LibRaw's unpacking of such a file costs an 8 MP
-frame about 24 ms of CPU on this machine, twelve times reading its bytes (``benchmarks/bench_batch.py``: the
-``read`` column). So when the raw IFD, checked by :mod:`~picamcal.raw.dng.reader` first, declares nothing else
-(no tiles, compression, LinearizationTable, ActiveArea, MaskedAreas, BlackLevelDeltaH/V, SampleFormat,
-Predictor or FillOrder other than 1), its strips are read into the mosaic here; the result is LibRaw's, bit for
-bit (``tests/test_dng_plain.py`` compares the two on each layout). Any other DNG is LibRaw's to decode.
+rpicam-still (rpicam-apps) and picamcal write the mosaic the same plain way: uncompressed 16-bit samples in
+strips, a 1x1 or 2x2 whole-number BlackLevel and a WhiteLevel (picamera2's PiDNG packs 10 and 12-bit samples:
+LibRaw unpacks those). LibRaw's unpacking of a plain file costs an 8 MP frame about 23 ms on this machine, eight
+times the whole read of the file here (``benchmarks/run.py``, "Reading one raw frame"). So when the raw IFD,
+checked by :mod:`~picamcal.raw.dng.reader` first, declares nothing else (no tiles, compression,
+LinearizationTable, ActiveArea, MaskedAreas, BlackLevelDeltaH/V, SampleFormat, Predictor or FillOrder other
+than 1), its strips are read into the mosaic here; the result is LibRaw's, bit for bit
+(``tests/test_dng_plain.py`` compares the two on each layout). Any other DNG is LibRaw's to decode.
 """
 
 from __future__ import annotations

@@ -3,10 +3,10 @@ its strips when it is plain 16-bit samples.
 
 Every tag that decides the pixels, their colours or their levels is checked against the DNG specification 1.4
 (type, count and value), and the raw image's declared size against :func:`picamcal.limits.check_size`, before
-anything is decoded: by LibRaw (:mod:`~picamcal.raw.dng.libraw`), or for the plain DNGs of rpicam-still,
-picamera2 and picamcal, uncompressed 16-bit strips, by :mod:`~picamcal.raw.dng.plain`, which gives LibRaw's
-result about ten times faster. The exposure, capture date, colour tags and picamcal's
-own JSON record are informative: a malformed one is left out with a warning.
+anything is decoded: by LibRaw (:mod:`~picamcal.raw.dng.libraw`), or for the plain DNGs of rpicam-still and
+picamcal, uncompressed 16-bit strips, by :mod:`~picamcal.raw.dng.plain`, which gives LibRaw's
+result about eight times faster. The exposure, capture date, colour tags and picamcal's own JSON record are
+informative: a malformed one is left out with a warning.
 """
 
 from __future__ import annotations
@@ -298,7 +298,7 @@ def read_dng(path: str | os.PathLike[str], *, expected_shape: Sequence[int] | No
     length, and every tag that decides the pixels or their levels (SamplesPerPixel, BitsPerSample,
     PhotometricInterpretation, CFARepeatPatternDim, CFAPattern, CFAPlaneColor, CFALayout, BlackLevelRepeatDim,
     BlackLevel, WhiteLevel, the strip or tile tags, SubIFDs, NewSubFileType) against the DNG specification's
-    types, counts and values. A plain mosaic (uncompressed 16-bit strips, as rpicam-still, picamera2 and
+    types, counts and values. A plain mosaic (uncompressed 16-bit strips, as rpicam-still and
     picamcal write; :mod:`~picamcal.raw.dng.plain`) is then read from its strips, LibRaw's result bit for bit.
     Any other is decoded by LibRaw (rawpy): the sizes it finds are checked again, and against
     ``expected_shape``, before it decodes the mosaic, and what it prints on stderr is folded into the error (or
