@@ -39,6 +39,7 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from bench_correct import timed  # wall and CPU ms of one call
 
 import picamcal
 
@@ -65,13 +66,6 @@ def cpu_clock_hz() -> float | None:
     except (OSError, ValueError, IndexError):
         return None
     return None
-
-
-def timed(fn: Callable[[], object]) -> tuple[float, float]:
-    """Wall and CPU (all threads) seconds of one call."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    fn()
-    return time.perf_counter() - wall, time.process_time() - cpu
 
 
 def setup() -> tuple[picamcal.Calibration, dict, np.ndarray, tuple[float, float]]:
@@ -128,7 +122,7 @@ def time_in_turns(methods: list[tuple[str, Callable[[], object]]], reset: Callab
             reset()
             runs[name].append(timed(fn))
     return {
-        name: (1e3 * statistics.median(w for w, _ in times), 1e3 * statistics.median(c for _, c in times))
+        name: (statistics.median(w for w, _ in times), statistics.median(c for _, c in times))
         for name, times in runs.items()
     }
 

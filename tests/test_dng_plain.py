@@ -4,7 +4,6 @@ other DNG is still LibRaw's to decode."""
 from __future__ import annotations
 
 import os
-import struct
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ from picamcal.raw.dng.plain import is_plain
 from picamcal.raw.dng.reader import raw_layout
 from picamcal.raw.dng.tiff import TiffFile
 from picamcal.simulate import make_camera, simulate_references
+from test_hardening_dng_brcm import dng_entries, rewrite  # IFD 0's entries; one entry's fields rewritten
 
 HEIGHT, WIDTH = 48, 64
 #: Tags of a DNG's mosaic: CFA 2x2 BGGR, DNG version, BlackLevelRepeatDim 2x2, per-site BlackLevel, WhiteLevel.
@@ -153,20 +153,11 @@ def test_a_packed_12_bit_dng_is_left_to_libraw(tmp_path):
         extratags=CAMERA_TAGS + tags,
         metadata=None,
     )
-    data = bytearray(path.read_bytes())  # tifffile wrote bytes: declare them 12-bit samples of the mosaic's size
-    offsets = _entries(bytes(data))
-    struct.pack_into("<I", data, offsets[256] + 8, WIDTH)
-    struct.pack_into("<H", data, offsets[258] + 8, 12)
-    path.write_bytes(bytes(data))
+    data = path.read_bytes()  # tifffile wrote bytes: declare them 12-bit samples of the mosaic's size
+    data = rewrite(data, dng_entries(data)[256], value=WIDTH)
+    path.write_bytes(rewrite(data, dng_entries(data)[258], value=12))
     assert not plain(path)
     np.testing.assert_array_equal(assert_libraws(path).bayer, values)
-
-
-def _entries(data: bytes) -> dict[int, int]:
-    """IFD 0's entries of a little-endian TIFF: tag code -> the entry's offset."""
-    (first,) = struct.unpack_from("<I", data, 4)
-    (count,) = struct.unpack_from("<H", data, first)
-    return {struct.unpack_from("<H", data, first + 2 + 12 * k)[0]: first + 2 + 12 * k for k in range(count)}
 
 
 def test_the_expected_shape_is_checked_before_the_strips_are_read(tmp_path):

@@ -12,7 +12,6 @@ than 1), its strips are read into the mosaic here; the result is LibRaw's, bit f
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
@@ -115,7 +114,7 @@ def read_strips(tiff: TiffFile, layout: Layout, expected_shape: Sequence[int] | 
         tiff.f.seek(offset)
         if tiff.f.readinto(into[first : first + length]) != length:  # the file shrank while it was read
             raise RawFormatError(f"truncated file: strip {k + 1} of the raw image ends early", tiff.path)
-    if tiff.order != {"little": "<", "big": ">"}[sys.byteorder]:
+    if not np.dtype(tiff.order + "u2").isnative:
         mosaic.byteswap(inplace=True)
     if (height, width) != mosaic.shape:
         mosaic = np.ascontiguousarray(mosaic[:height, :width])
