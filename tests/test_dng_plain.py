@@ -92,6 +92,7 @@ PLAIN = {
     # rpicam-apps: thumbnail in IFD 0, the mosaic in a SubIFD in many strips, BlackLevel as RATIONAL.
     "rpicam-apps": ([*MOSAIC_TAGS[:3], rational_blacks((60, 61, 62, 63)), MOSAIC_TAGS[4]], {"rowsperstrip": 5}, True),
     "big-endian": (MOSAIC_TAGS, {"byteorder": ">", "rowsperstrip": 7}, False),
+    "no BlackLevel, repeat 2x2": ([*MOSAIC_TAGS[:3], MOSAIC_TAGS[4]], {}, False),  # found by the byte-change fuzz
     "one black level": ([*MOSAIC_TAGS[:2], (50714, 3, 1, 64, True), MOSAIC_TAGS[4]], {}, False),
     "CFAPlaneColor 2 1 0": ([*MOSAIC_TAGS, (50710, 1, 3, bytes((2, 1, 0)), True)], {}, False),
     "DefaultCrop": ([*MOSAIC_TAGS, (50719, 3, 2, (4, 6), True), (50720, 3, 2, (40, 30), True)], {}, False),

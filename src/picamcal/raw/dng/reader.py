@@ -129,7 +129,8 @@ def raw_layout(tiff: TiffFile, ifd0: Mapping[int, Field]) -> tuple[Mapping[int, 
     repeat = tiff.tag(ifd, BLACK_REPEAT_DIM, (SHORT,), 2, default=[1, 1], positive=True)
     if repeat[0] * repeat[1] > _MAX_BLACK_REPEAT:
         raise RawFormatError(f"DNG tag BlackLevelRepeatDim is {repeat[0]}x{repeat[1]}, larger than LibRaw reads", path)
-    black = tiff.tag(ifd, BLACK_LEVEL, (SHORT, LONG, RATIONAL), repeat[0] * repeat[1], default=[0])
+    sites = repeat[0] * repeat[1]
+    black = tiff.tag(ifd, BLACK_LEVEL, (SHORT, LONG, RATIONAL), sites, default=[0] * sites)  # DNG: 0 by default
     white = tiff.one(ifd, WHITE_LEVEL, integer, default=(1 << bits) - 1)
     if not max(black) < white <= 0xFFFF:
         raise RawFormatError(f"DNG tag WhiteLevel {white} is not between the black level {max(black)} and 65535", path)
