@@ -107,6 +107,26 @@ def test_local_spline_is_the_cubic_spline_of_interpolation_matrix(height, site):
     np.testing.assert_allclose(local, dense, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("n", [2, 3, 4, 5, 9, 154, 254])
+@pytest.mark.parametrize("spacing", ["bins", "uneven"])
+def test_spline_coefficients_are_scipys_interpolating_splines(n, spacing):
+    from scipy.interpolate import make_interp_spline
+
+    def scipys(centres, values, axis):
+        bc = "not-a-knot" if centres.size > 3 else "natural"
+        spline = make_interp_spline(centres, values, k=3, bc_type=bc, axis=axis)
+        return spline.t, np.moveaxis(spline.c, 0, axis)
+
+    rng = np.random.default_rng(n)
+    cy = 8.0 + 16 * np.arange(n) if spacing == "bins" else np.cumsum(rng.uniform(4, 40, n))
+    cx = np.cumsum(rng.uniform(4, 40, 6))
+    field = rng.normal(1, 0.3, size=(n, 6, 3))
+    knots, along_y = scipys(cy, field, 0)
+    np.testing.assert_array_equal(spline_knots(cy), knots)
+    # The same system, solved by LU instead of scipy's banded LU: equal to double rounding (values are ~1).
+    np.testing.assert_allclose(spline_coefficients(field, cy, cx), scipys(cx, along_y, 1)[1], rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("pattern", PATTERNS)
 def test_kernel_demosaic_is_malvar_he_cutler_with_colour_demosaicings_borders(pattern):
     mosaic = np.random.default_rng(3).integers(0, 1024, size=(22, 30)).astype(np.uint16)

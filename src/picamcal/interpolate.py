@@ -76,18 +76,37 @@ def _spline(centres: np.ndarray, values: np.ndarray, axis: int) -> tuple[np.ndar
     """Knots and B-spline coefficients (along ``axis``) of the cubic spline through ``values`` at ``centres``.
 
     The boundary conditions are those of :func:`interpolation_matrix`: not-a-knot, natural for 2 or 3
-    samples; one sample is a constant (a cubic Bezier piece with 4 equal coefficients).
+    samples; one sample is a constant (a cubic Bezier piece with 4 equal coefficients). The knots and the
+    coefficients are scipy's ``make_interp_spline``'s (to rounding), solved here with numpy: this is on the way
+    of every correction, and importing scipy.interpolate costs more than the rest of a command's start.
     """
-    if centres.size == 1:
+    values = np.moveaxis(np.asarray(values, dtype=np.float64), axis, 0)
+    n = centres.size
+    if n == 1:
         # Equal coefficients make a constant whatever the knots; a span far wider than any sensor keeps
         # every position near its middle, where the weights are all positive (no cancellation).
         knots = np.repeat([centres[0] - _WIDE, centres[0] + _WIDE], _K + 1)
-        return knots, np.repeat(values, _K + 1, axis=axis)
-    bc = "not-a-knot" if centres.size > 3 else "natural"
-    from scipy.interpolate import make_interp_spline
-
-    spline = make_interp_spline(centres, values, k=_K, bc_type=bc, axis=axis)
-    return spline.t, np.moveaxis(spline.c, 0, axis)
+        return knots, np.moveaxis(np.repeat(values, _K + 1, axis=0), 0, axis)
+    ends = np.repeat(centres[[0, -1]], _K + 1)
+    if n > 3:  # not-a-knot: no knot at the second and the second-last centre
+        knots = np.concatenate([ends[: _K + 1], centres[2:-2], ends[_K + 1 :]])
+    else:  # natural: a knot at every centre, and a second derivative of 0 at both ends
+        knots = np.concatenate([ends[: _K + 1], centres[1:-1], ends[_K + 1 :]])
+    first, weights = spline_taps(knots, centres)
+    size = knots.size - _K - 1
+    system = np.zeros((size, size))
+    rows = np.arange(n) + (size - n) // 2
+    for tap in range(_K + 1):
+        system[rows, first + tap] = weights[:, tap]
+    rhs = np.zeros((size, *values.shape[1:]))
+    rhs[rows] = values
+    if size > n:  # natural ends: the second derivative of a clamped cubic B-spline at its end knot is 0 (to a factor)
+        a, b = 1 / (knots[_K + 1] - knots[0]), 1 / (knots[_K + 2] - knots[0])
+        system[0, :3] = a, -a - b, b
+        a, b = 1 / (knots[-1] - knots[-_K - 3]), 1 / (knots[-1] - knots[-_K - 2])
+        system[-1, -3:] = a, -a - b, b
+    coefficients = np.linalg.solve(system, rhs.reshape(size, -1)).reshape(rhs.shape)
+    return knots, np.moveaxis(coefficients, 0, axis)
 
 
 def spline_knots(centres: np.ndarray) -> np.ndarray:
