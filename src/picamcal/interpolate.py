@@ -48,11 +48,13 @@ def interpolation_matrix(centres: np.ndarray, positions: np.ndarray) -> np.ndarr
     n = centres.size
     if n == 1:
         return np.ones((positions.size, 1))
-    # scipy.interpolate is imported where a spline is made (0.15 s), not by every module that imports this one.
-    from scipy.interpolate import CubicSpline
-
-    spline = CubicSpline(centres, np.eye(n), axis=0, bc_type="not-a-knot" if n > 3 else "natural")
-    return spline(positions)
+    # The spline of each unit sample, in its B-spline form: scipy's CubicSpline(centres, eye(n)) to rounding.
+    knots, coefficients = _spline(centres, np.eye(n), 0)
+    first, weights = spline_taps(knots, positions)
+    matrix = np.zeros((positions.size, n))
+    for tap in range(_K + 1):
+        matrix += weights[:, tap, None] * coefficients[first + tap]
+    return matrix
 
 
 def upsample(field: np.ndarray, ay: np.ndarray, ax: np.ndarray) -> np.ndarray:

@@ -197,7 +197,7 @@ def flat_field_gain_map(flat: FlatField) -> GainMap:
     >>> gm.points, float(gm.gains.min()), bool(1.2 < gm.gains.max() < 3)
     ((31, 41), 1.0, True)
     """
-    from ...interpolate import interpolation_matrix  # scipy: only when a map is made (issue 14, instant commands)
+    from ...interpolate import interpolation_matrix
 
     nby, nbx = flat.site_white.shape[:2]
     nv, nh = min(2 * nby + 1, MAX_POINTS), min(2 * nbx + 1, MAX_POINTS)
