@@ -83,17 +83,9 @@ def _spline(centres: np.ndarray, values: np.ndarray, axis: int) -> tuple[np.ndar
     of every correction, and importing scipy.interpolate costs more than the rest of a command's start.
     """
     values = np.moveaxis(np.asarray(values, dtype=np.float64), axis, 0)
-    n = centres.size
-    if n == 1:
-        # Equal coefficients make a constant whatever the knots; a span far wider than any sensor keeps
-        # every position near its middle, where the weights are all positive (no cancellation).
-        knots = np.repeat([centres[0] - _WIDE, centres[0] + _WIDE], _K + 1)
+    n, knots = centres.size, spline_knots(centres)
+    if n == 1:  # equal coefficients make a constant whatever the knots
         return knots, np.moveaxis(np.repeat(values, _K + 1, axis=0), 0, axis)
-    ends = np.repeat(centres[[0, -1]], _K + 1)
-    if n > 3:  # not-a-knot: no knot at the second and the second-last centre
-        knots = np.concatenate([ends[: _K + 1], centres[2:-2], ends[_K + 1 :]])
-    else:  # natural: a knot at every centre, and a second derivative of 0 at both ends
-        knots = np.concatenate([ends[: _K + 1], centres[1:-1], ends[_K + 1 :]])
     first, weights = spline_taps(knots, centres)
     size = knots.size - _K - 1
     system = np.zeros((size, size))
@@ -120,7 +112,15 @@ def spline_knots(centres: np.ndarray) -> np.ndarray:
     [0.0, 0.0, 0.0, 0.0, 2.0, 4.0, 4.0, 4.0, 4.0]
     """
     centres = np.asarray(centres, dtype=float)
-    return _spline(centres, np.zeros(centres.size), 0)[0]
+    if centres.size == 1:
+        # For a constant (equal coefficients), a span far wider than any sensor keeps every position near its
+        # middle, where the weights are all positive (no cancellation).
+        return np.repeat([centres[0] - _WIDE, centres[0] + _WIDE], _K + 1)
+    ends = np.repeat(centres[[0, -1]], _K + 1)
+    if centres.size > 3:  # not-a-knot: no knot at the second and the second-last centre
+        return np.concatenate([ends[: _K + 1], centres[2:-2], ends[_K + 1 :]])
+    # natural: a knot at every centre, and a second derivative of 0 at both ends
+    return np.concatenate([ends[: _K + 1], centres[1:-1], ends[_K + 1 :]])
 
 
 def spline_coefficients(field: np.ndarray, centres_y: np.ndarray, centres_x: np.ndarray) -> np.ndarray:
