@@ -332,7 +332,7 @@ def _bench(
                 f"with the same {workers} workers ({1e3 * slower_alone:.0f} ms/file): {1e3 * per_file_s:.0f} ms/file, "
                 f"{ratio:.2f}x -- {_goal(ratio, GOAL)}"
                 + (
-                    f" (the median of {len(timed)} rounds: {', '.join(f'{r[0]:.2f}' for r in timed)})"
+                    f" (the median of {len(timed)} rounds: {', '.join(f'{r.ratio:.2f}' for r in timed)})"
                     if len(timed) > 1
                     else ""
                 ),

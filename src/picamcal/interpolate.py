@@ -116,11 +116,9 @@ def spline_knots(centres: np.ndarray) -> np.ndarray:
         # For a constant (equal coefficients), a span far wider than any sensor keeps every position near its
         # middle, where the weights are all positive (no cancellation).
         return np.repeat([centres[0] - _WIDE, centres[0] + _WIDE], _K + 1)
-    ends = np.repeat(centres[[0, -1]], _K + 1)
-    if centres.size > 3:  # not-a-knot: no knot at the second and the second-last centre
-        return np.concatenate([ends[: _K + 1], centres[2:-2], ends[_K + 1 :]])
-    # natural: a knot at every centre, and a second derivative of 0 at both ends
-    return np.concatenate([ends[: _K + 1], centres[1:-1], ends[_K + 1 :]])
+    # not-a-knot: no knot at the second and the second-last centre; natural (2-3 centres): a knot at every centre
+    inner = centres[2:-2] if centres.size > 3 else centres[1:-1]
+    return np.concatenate([np.repeat(centres[0], _K + 1), inner, np.repeat(centres[-1], _K + 1)])
 
 
 def spline_coefficients(field: np.ndarray, centres_y: np.ndarray, centres_x: np.ndarray) -> np.ndarray:

@@ -42,6 +42,7 @@ import numpy as np
 
 from ...bayer import bin_centres
 from ...errors import CalibrationFileError, RawFormatError
+from ...interpolate import interpolation_matrix
 from ...limits import require_regular_file
 from ..model import RawImage
 from .tags import OPCODE_LIST2, UNDEFINED
@@ -197,8 +198,6 @@ def flat_field_gain_map(flat: FlatField) -> GainMap:
     >>> gm.points, float(gm.gains.min()), bool(1.2 < gm.gains.max() < 3)
     ((31, 41), 1.0, True)
     """
-    from ...interpolate import interpolation_matrix
-
     nby, nbx = flat.site_white.shape[:2]
     nv, nh = min(2 * nby + 1, MAX_POINTS), min(2 * nbx + 1, MAX_POINTS)
     rel_v, rel_h = np.linspace(0.0, 1.0, nv), np.linspace(0.0, 1.0, nh)
