@@ -7,13 +7,13 @@ flat field, demosaic, unmixing), it prints milliseconds per frame, each the medi
 all measured in this one process:
 
 - ``picamcal.correct`` with the fused numba kernel, writing float32 (H, W, 3) into a reused output array
-  (``out=``) and into a new one, and the same for the ``uint16-tiff`` codes (``dtype=np.uint16``, planar
-  (3, H, W), written by the kernel with no float32 image); with the numpy path (both outputs); with the plain
+  (``out=``) and into a new one, and the same for the ``uint16-tiff`` codes (``dtype=np.uint16``, (H, W, 3),
+  written by the kernel with no float32 image); with the numpy path (both outputs); with the plain
   reference implementation;
 - the paper-style application of the unmixing field alone (the 2019 code: the 3x3 field upsampled to
   full resolution with ``scipy.ndimage.zoom(order=1)``, applied with ``numpy.sum`` broadcasting), on
   the same flat-fielded, demosaiced image;
-- a plain ``np.copyto`` of an (H, W, 3) float32 array and of a (3, H, W) uint16 one, the memory-bandwidth
+- a plain ``np.copyto`` of an (H, W, 3) float32 array and of an (H, W, 3) uint16 one, the memory-bandwidth
   floor of writing each output;
 
 with ratios against the paper-style application and against the copy of the same output type, and each
@@ -51,7 +51,7 @@ GOAL_COPY = 2.5  # and with a reused output at most this many times the time of 
 GOAL_MEMORY = 4.0  # peak memory per frame at most this many times the output
 
 COPY_FLOAT = "memory copy, float32 (H, W, 3)"
-COPY_CODES = "memory copy, uint16 (3, H, W)"
+COPY_CODES = "memory copy, uint16 (H, W, 3)"
 FUSED_FLOAT = "fused kernel (numba), float32, reused output"
 FUSED_FLOAT_NEW = "fused kernel (numba), float32, new output"
 FUSED_CODES = "fused kernel (numba), uint16, reused output"
@@ -94,7 +94,7 @@ def bench_sensor(sensor: str, repeats: int, slow_repeats: int) -> list[str]:
     flat_rgb = correct(raw, cal, "flat")  # the paper-style application's input (not timed)
     rng = np.random.default_rng(0)
     source = rng.random((height, width, 3), dtype=np.float32)
-    source_codes = rng.integers(0, 65536, size=(3, height, width), dtype=np.uint16)
+    source_codes = rng.integers(0, 65536, size=(height, width, 3), dtype=np.uint16)
     target, target_codes = np.empty_like(source), np.empty_like(source_codes)
     reused, reused_codes = np.empty_like(source), np.empty_like(source_codes)
     u16 = np.uint16

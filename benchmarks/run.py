@@ -61,7 +61,7 @@ def bench_calibration_12mp(repeats: int, folder: Path) -> list[tuple[str, float,
     from picamcal.simulate import make_camera, simulate_references
 
     refs = simulate_references(make_camera("imx477"), seed=0)
-    picamcal.calibrate(**refs)  # warm up (numba compiles its binning kernel once)
+    picamcal.calibrate(**refs)  # warm up (first allocations, imports)
     copy = median_time(lambda: [r.bayer.copy() for r in refs.values()], repeats)
     seconds = median_time(lambda: picamcal.calibrate(**refs).save(folder / "cal12.npz"), repeats)
     return [

@@ -423,7 +423,7 @@ def _small_file(**overrides) -> bytes:
 
 BAD_FILES = {
     "empty": (b"", "empty file"),
-    "jpeg without block": (jpeg("RP_imx219"), "no raw (BRCM) block: a processed image? correct it with --processed"),
+    "jpeg without block": (jpeg("RP_imx219"), "no raw (BRCM) block, not a raw image (DNG, JPEG+raw"),
     "unknown block size": (_small_file() + bytes(32), "block of 445472 bytes (header 640x480) matches no known"),
     "truncated": (_small_file()[:-1000], "truncated file"),
     "truncated in header": (_small_file()[: len(jpeg("RP_imx219")) + 1000], "truncated file"),

@@ -285,3 +285,32 @@ def test_noise_penalty_definitions(cal):
     assert cal.noise_penalty("pure").mean() > cal.noise_penalty("centre").mean()
     with pytest.raises(ValueError, match="unknown mode"):
         cal.noise_penalty("nope")
+
+
+def test_the_light_is_recorded_and_checked(tmp_path, cal):
+    assert cal.light is None  # calibrate alone does not know it
+    screen = dataclasses.replace(cal, light="screen")
+    back = load_calibration(screen.save(tmp_path / "cal.npz"))
+    assert back.light == "screen" and back.to_record()["light"] == "screen"
+    with np.load(tmp_path / "cal.npz", allow_pickle=False) as data:
+        assert json.loads(str(data["metadata"]))["light"] == "screen"
+    with pytest.raises(CalibrationInputError, match="record 'light' must be one of jig, screen, sheets, not 'sun'"):
+        dataclasses.replace(cal, light="sun")
+    _rewrite(tmp_path / "cal.npz", light="sun")
+    with pytest.raises(CalibrationFileError, match=r"cal\.npz: .*record 'light' must be one of jig, screen, sheets"):
+        load_calibration(tmp_path / "cal.npz")
+
+
+def test_an_old_calibration_file_loads_with_its_light_unknown():
+    from pathlib import Path
+
+    from picamcal.analysis.verdicts import expected_accuracy
+
+    path = Path(__file__).parent / "data" / "calibration_before_issue13.npz"
+    with np.load(path, allow_pickle=False) as data:
+        assert "light" not in json.loads(str(data["metadata"]))  # written before calibrations recorded their light
+    old = load_calibration(path)
+    assert old.light is None and old.to_record()["light"] is None
+    # Its expected accuracy is that of every light's workflow, the jig's and the screen's.
+    expected = expected_accuracy(old)
+    assert expected["light"] is None and {"jig", "screen"} <= {w["calibration"] for w in expected["workflows"]}

@@ -206,13 +206,18 @@ def test_calibration_that_does_not_fit_the_image(cal_path, tmp_path):
     assert run("simulate", "--out", str(other), "--sensor", "imx477", "--size", SIM_SIZE).returncode == 0
     out = tmp_path / "out"
     result = run("correct", str(cal_path), str(other / "target.dng"), "--out", str(out))
-    # A batch reports the file that does not fit and goes on with the others (here none): exit status 1.
+    # One file that does not fit is an error like any other: one line, exit status 2, no output folder.
+    assert_bad_input(result, f"{other / 'target.dng'}: ", "sensor imx477, calibration is for imx219")
+    assert not out.exists()
+    # In a batch each is reported and the others go on: exit status 1, the failures before the summary, and no
+    # output folder left empty.
+    result = run("correct", str(cal_path), str(other / "target.dng"), str(other / "white.dng"), "--out", str(out))
     assert result.returncode == 1, result.stderr
-    failed = [line for line in result.stderr.splitlines() if line.startswith("picamcal: failed: ")]
-    assert len(failed) == 1 and "target.dng" in failed[0], result.stderr
-    assert "sensor imx477, calibration is for imx219" in failed[0]
-    assert "Traceback" not in result.stderr
-    assert not out.exists() or not any(out.iterdir())
+    lines = result.stderr.splitlines()
+    assert [line.split(": ")[1] for line in lines[:2]] == ["failed", "failed"] and len(lines) == 3, result.stderr
+    assert lines[0].startswith(f"picamcal: failed: {other / 'target.dng'}: ") and "sensor imx477" in lines[0]
+    assert lines[2].startswith("wrote 0 image(s)") and lines[2].endswith("failed 2")
+    assert not out.exists()
 
 
 @pytest.mark.slow

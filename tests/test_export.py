@@ -149,7 +149,7 @@ def test_bad_base_files(tmp_path, sensor_run):
         with pytest.raises(TuningError, match=message):
             load_tuning(path)
     (tmp_path / "junk.json").write_text("{not json")
-    with pytest.raises(TuningError, match=r"junk\.json: not a JSON tuning file"):
+    with pytest.raises(TuningError, match=r"junk\.json: not a libcamera tuning file: .* at line \d+"):
         load_tuning(tmp_path / "junk.json")
     base = load_tuning(HERE / "data" / "tuning_vc4_imx219.json")
     other = "imx477" if sensor == "imx219" else "imx219"

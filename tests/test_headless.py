@@ -193,7 +193,15 @@ def test_a_size_that_does_not_fit_names_both_byte_counts(tmp_path):
     [
         ("YUV420", r"unknown raw format 'YUV420' \(expected S<order>\{8,10,12,14,16\}, S<order>\{10,12,14\}_CSI2P"),
         ("SBGGR10P", "did you mean SBGGR10_CSI2P?"),  # V4L2's name of the packed format
-        ("SBGRG12_CSI2P", "did you mean SGRBG12_CSI2P?"),
+        ("SBGGR10_CSIP", r"did you mean SBGGR10_CSI2P\?"),  # a typo beside a Bayer order: the format of that order
+        # No Bayer order, or a misspelt one: the four formats, never one picked (the order is the data's).
+        (
+            "RAW10_CSI2P",
+            "did you mean SBGGR10_CSI2P, SGBRG10_CSI2P, SGRBG10_CSI2P or SRGGB10_CSI2P: the Bayer order is "
+            "part of the format",
+        ),
+        ("SBGRG12_CSI2P", "did you mean SBGGR12_CSI2P, SGBRG12_CSI2P, SGRBG12_CSI2P or SRGGB12_CSI2P: the Bayer"),
+        ("PISP_COMP1", "did you mean BGGR_PISP_COMP1, GBRG_PISP_COMP1, GRBG_PISP_COMP1 or RGGB_PISP_COMP1: "),
         ("SBGGR8_CSI2P", "unknown raw format 'SBGGR8_CSI2P'"),
         ("R10_CSI2P", "R10_CSI2P is a monochrome .greyscale. format: picamcal calibrates colour Bayer sensors"),
         ("r12", "r12 is a monochrome"),
@@ -226,9 +234,10 @@ def test_an_unknown_sensor_without_a_black_level_reads_and_is_refused_where_a_le
     assert raw.metadata["black_level_source"] == "none" and all(np.isnan(raw.black_level))
     with pytest.raises(RawFormatError, match="no black level") as info:
         require_black_level(raw)
-    assert str(info.value).startswith(str(path)) and "--black-level N, a dark frame (--black FILE) or --sensor" in str(
-        info.value
-    )
+    # The sensor was given: only a level or a dark frame can say its black level, not --sensor.
+    message = str(info.value)
+    assert message.startswith(str(path)) and "the black level of the imx298, a sensor outside its registry" in message
+    assert message.endswith("give --black-level N or a dark frame (--black FILE)")
     given = read_raw(path, raw_format="SRGGB10_CSI2P", size=(64, 8), sensor="imx298", black_level=[60, 61, 62, 63])
     require_black_level(given)
     assert given.black_level == (60.0, 61.0, 62.0, 63.0) and given.metadata["black_level_source"] == "given"
@@ -403,7 +412,8 @@ def test_cli_unknown_sensor_without_a_black_level_is_refused(dumps, tmp_path):
     cal = tmp_path / "cal.npz"
     refs = [f"--{role}={dumps / f'{role}.raw'}" for role in ("white", "red", "green", "blue")]
     result = run("calibrate", *refs, *HEADLESS, "--sensor", "imx298", "--out", str(cal))
-    assert_bad_input(result, "white.raw", "no black level", "--black-level", "--black FILE", "--sensor")
+    assert_bad_input(result, "white.raw", "no black level", "imx298, a sensor outside its registry", "--black FILE")
+    assert "or --sensor" not in result.stderr  # it was given
     assert not cal.exists()
 
 

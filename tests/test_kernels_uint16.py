@@ -49,7 +49,7 @@ def test_codes_are_those_of_encode_uint16_bit_for_bit(scene, engine, mode):
     cal, raw = scene
     codes = correct(raw, cal, mode, engine=engine, dtype=np.uint16)
     expected = encode_uint16(correct(raw, cal, mode, engine=engine))
-    assert codes.dtype == np.uint16 and codes.shape == (3, raw.height, raw.width)
+    assert codes.dtype == np.uint16 and codes.shape == (raw.height, raw.width, 3)  # interleaved, as the TIFF
     np.testing.assert_array_equal(codes, expected)
     # The scene reaches both ends, so the clipping is exercised, and the white sits near its code.
     assert codes.min() == 0 and codes.max() == 65535
@@ -98,7 +98,7 @@ def test_codes_of_nan_infinity_negatives_and_halves(site_gains):
 @pytest.mark.parametrize("engine", ENGINES)
 def test_out_takes_the_codes_and_is_reused(scene, engine):
     cal, raw = scene
-    out = np.full((3, raw.height, raw.width), 7, dtype=np.uint16)
+    out = np.full((raw.height, raw.width, 3), 7, dtype=np.uint16)
     assert correct(raw, cal, "flat", engine=engine, out=out, dtype=np.uint16) is out
     np.testing.assert_array_equal(out, correct(raw, cal, "flat", engine=engine, dtype=np.uint16))
     assert correct(raw, cal, "centre", engine=engine, out=out, dtype=np.uint16) is out  # the same buffer again
@@ -110,16 +110,16 @@ def test_wrong_out_is_refused_with_picamcals_error(scene, engine):
     cal, raw = scene
     h, w = raw.height, raw.width
     wrong = [
-        np.empty((3, h, w), np.float32),  # the codes' shape, not their type
-        np.empty((h, w, 3), np.uint16),  # the codes' type, interleaved
-        np.empty((3, h, w + 2), np.uint16)[:, :, :w],  # not contiguous
-        np.empty((3, h, w), np.uint16)[::-1],  # not contiguous either
+        np.empty((h, w, 3), np.float32),  # the codes' shape, not their type
+        np.empty((3, h, w), np.uint16),  # the codes' type, planar
+        np.empty((h, w + 2, 3), np.uint16)[:, :w],  # not contiguous
+        np.empty((h, w, 3), np.uint16)[::-1],  # not contiguous either
     ]
     for out in wrong:
-        with pytest.raises(OutputError, match=r"out must be .*uint16 .*\(3, 162, 202\)"):
+        with pytest.raises(OutputError, match=r"out must be .*uint16 .*\(162, 202, 3\)"):
             correct(raw, cal, "flat", engine=engine, out=out, dtype=np.uint16)
     with pytest.raises(OutputError, match="out must be"):
-        correct(raw, cal, "flat", engine=engine, out=np.empty((3, h, w), np.uint16))  # float32 asked for
+        correct(raw, cal, "flat", engine=engine, out=np.empty((h, w, 3), np.uint16))  # float32 asked for
     with pytest.raises(ValueError, match="dtype"):
         correct(raw, cal, "flat", engine=engine, dtype=np.float64)
     with pytest.raises(ValueError, match="binned"):

@@ -1,9 +1,15 @@
-"""kill -9 of calibrate, correct (with workers), report and correct --zarr while they work.
+"""kill -9 of calibrate, correct (with workers), report and correct --zarr while they work; SIGINT and SIGTERM
+of a correct batch (the pool, this process, a zarr stack, a dask cluster).
 
 Each run carries a tag in its environment, which every process it starts inherits (the forkserver, the
 resource tracker, the pool's workers): after the kill no process with that tag may be left, no file may be
 half-written under its final name, and running the same command again finishes the work and leaves no
 temporary. The kill lands when a temporary of the run appears (the work is under way), not after a fixed time.
+
+An interrupted batch (SIGINT as Ctrl-C sends it, to the whole process group; SIGTERM as ``kill`` sends it, to
+the command alone, or as ``timeout`` and systemd do, to the whole group) must start no new file, leave no
+temporary and no process, and end with one line saying how many files it wrote and that running it again
+resumes, with exit status 130 or 143. The signal lands when some outputs are finished, not after a fixed time.
 """
 
 from __future__ import annotations
@@ -240,3 +246,182 @@ def test_killed_zarr_batch_leaves_no_process_and_resumes(data, tmp_path):
     for i in range(FRAMES):  # exact: the same calibration and raw data, the same float32 arithmetic
         np.testing.assert_array_equal(array[i], reference[i])
     assert temporaries(tmp_path) == []
+
+
+# ---------------------------------------------------------------------------------------------- SIGINT and SIGTERM
+#: Frames of an interrupted batch, written as 16-bit PNG: about 0.2 s each on the development PC, so that the
+#: batch is still at work when its first outputs are finished.
+INTERRUPTED_FRAMES = 16
+INTERRUPTED_FORMAT = "srgb-png16"
+
+
+@pytest.fixture(scope="module")
+def pngs(data, tmp_path_factory) -> dict[str, Path]:
+    """INTERRUPTED_FRAMES copies of the target, and their outputs from a serial run."""
+    root = tmp_path_factory.mktemp("interrupted")
+    frames = root / "frames"
+    frames.mkdir()
+    for i in range(INTERRUPTED_FRAMES):
+        shutil.copyfile(data["frames"] / "f00.dng", frames / f"g{i:02d}.dng")
+    options = BatchOptions(out_dir=root / "reference", output_format=INTERRUPTED_FORMAT, workers=0)
+    assert len(run_batch(data["cal"], [frames], options).done) == INTERRUPTED_FRAMES
+    return {"cal": data["cal"], "frames": frames, "reference": root / "reference"}
+
+
+def finished_outputs(folder: Path) -> list[str]:
+    try:
+        return sorted(entry.name for entry in os.scandir(folder) if not entry.name.startswith("."))
+    except FileNotFoundError:
+        return []
+
+
+def interrupt(
+    args: tuple[str, ...], out: Path, signum: int, *, group: bool, after: int = 2
+) -> tuple[int, str, list[str], str]:
+    """Run ``picamcal ARGS`` in a session of its own (so that a signal to its group reaches no other process),
+    send ``signum`` to it (or to its whole group) once ``after`` outputs are in ``out``; its exit status, stderr,
+    the outputs finished when the signal was sent, and its tag."""
+    tag = uuid.uuid4().hex
+    process = subprocess.Popen(
+        command(*args),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, TAG: tag},
+    )
+    while process.poll() is None and len(finished_outputs(out)) < after:
+        time.sleep(0.005)
+    seen = finished_outputs(out)
+    assert process.poll() is None, "the batch finished before the signal"
+    (os.killpg if group else os.kill)(process.pid, signum)
+    _, stderr = process.communicate(timeout=300)
+    return process.returncode, stderr, seen, tag
+
+
+def assert_stopped_cleanly(
+    out: Path, reference: Path, stderr: str, seen: list[str], signum: int, workers: int, total: int
+) -> list[str]:
+    """The one line, and no file started after the signal, none half-written, no temporary; the outputs."""
+    finished = finished_outputs(out)
+    name = signal.Signals(signum).name
+    assert stderr.splitlines()[-1:] == [
+        f"picamcal: interrupted by {name}: wrote {len(finished)} of {total} image(s) to {out}; run the same command "
+        "again to resume"
+    ], stderr
+    assert "Traceback" not in stderr
+    # No new file started: besides those finished when the signal came, at most the one each worker was writing.
+    assert set(seen) <= set(finished) and len(finished) <= len(seen) + max(workers, 1) < total
+    assert temporaries(out.parent) == []
+    for name in finished:  # complete, never half-written
+        assert (out / name).read_bytes() == (reference / name).read_bytes(), name
+    return finished
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("signum", "group", "workers"),
+    [
+        pytest.param(signal.SIGINT, True, 2, id="ctrl-c-pool"),
+        pytest.param(signal.SIGTERM, False, 2, id="kill-pool"),
+        pytest.param(signal.SIGTERM, True, 2, id="timeout-or-systemd-pool"),
+        pytest.param(signal.SIGINT, True, 0, id="ctrl-c-in-process"),
+        pytest.param(signal.SIGTERM, False, 0, id="kill-in-process"),
+    ],
+)
+def test_an_interrupted_batch_stops_says_so_and_resumes(pngs, tmp_path, signum, group, workers):
+    out = tmp_path / "out"
+    args = ("correct", str(pngs["cal"]), str(pngs["frames"]), "--out", str(out), "--workers", str(workers))
+    args += ("--output-format", INTERRUPTED_FORMAT)
+    code, stderr, seen, tag = interrupt(args, out, signum, group=group)
+    assert code == 128 + signum, stderr
+    assert_nothing_left_running(tag)
+    finished = assert_stopped_cleanly(out, pngs["reference"], stderr, seen, signum, workers, INTERRUPTED_FRAMES)
+
+    again = subprocess.run(command(*args), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"wrote {INTERRUPTED_FRAMES - len(finished)} image(s)" in again.stderr
+    assert f"skipped {len(finished)} (done already)" in again.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == {
+        p.name: p.read_bytes() for p in pngs["reference"].iterdir()
+    }
+
+
+@pytest.mark.slow
+def test_an_interrupted_zarr_batch_records_its_frames_and_leaves_no_chunk_temporary(pngs, tmp_path):
+    zarr = pytest.importorskip("zarr")
+    stack = tmp_path / "frames.zarr"
+    args = ("correct", str(pngs["cal"]), str(pngs["frames"]), "--zarr", str(stack), "--workers", "2")
+    tag = uuid.uuid4().hex
+    process = subprocess.Popen(
+        command(*args), stderr=subprocess.PIPE, text=True, start_new_session=True, env={**os.environ, TAG: tag}
+    )
+    chunks = names(stack / "0" / "c", "*")
+    while process.poll() is None and len(chunks()) < 2:  # frames are being written: their chunk folders appear
+        time.sleep(0.005)
+    assert process.poll() is None, "the batch finished before the signal"
+    os.killpg(process.pid, signal.SIGINT)
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 130, stderr
+    assert_nothing_left_running(tag)
+    done = zarr.open_group(stack, mode="r").attrs["picamcal"]["done"]
+    assert stderr.splitlines()[-1] == (
+        f"picamcal: interrupted by SIGINT: wrote {len(done)} of {INTERRUPTED_FRAMES} image(s) to {stack}; run the "
+        "same command again to resume"
+    )
+    assert 0 < len(done) < INTERRUPTED_FRAMES
+    assert temporaries(tmp_path) == []  # neither the stack's mark nor a chunk's temporary
+    again = subprocess.run(command(*args), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"skipped {len(done)} (done already)" in again.stderr
+    assert zarr.open_group(stack, mode="r").attrs["picamcal"]["done"] == list(range(INTERRUPTED_FRAMES))
+
+
+#: A dask cluster of two worker processes in the command's own process, running ``picamcal correct`` on it.
+DASK_RUN = """
+import sys
+from distributed import LocalCluster
+from picamcal.cli import main
+
+if __name__ == "__main__":
+    with LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cluster:
+        main([*sys.argv[1:], "--scheduler", cluster.scheduler_address])
+"""
+
+
+@pytest.mark.slow
+def test_an_interrupted_batch_on_a_dask_cluster_stops_its_tasks(pngs, tmp_path):
+    pytest.importorskip("distributed")
+    script = tmp_path / "dask_run.py"
+    script.write_text(DASK_RUN)
+    out = tmp_path / "out"
+    args = ("correct", str(pngs["cal"]), str(pngs["frames"]), "--out", str(out), "--output-format", INTERRUPTED_FORMAT)
+    tag = uuid.uuid4().hex
+    process = subprocess.Popen(
+        [sys.executable, str(script), *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, TAG: tag},
+    )
+    while process.poll() is None and len(finished_outputs(out)) < 2:
+        time.sleep(0.005)
+    seen = finished_outputs(out)
+    assert process.poll() is None, "the batch finished before the signal"
+    os.kill(process.pid, signal.SIGINT)  # the command alone: the cluster's workers see the batch's own stop
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 130, stderr
+    assert_nothing_left_running(tag)
+    finished = finished_outputs(out)
+    lines = [line for line in stderr.splitlines() if line.startswith("picamcal: ")]
+    assert lines == [
+        f"picamcal: interrupted by SIGINT: wrote {len(finished)} of {INTERRUPTED_FRAMES} image(s) to {out}; run the "
+        "same command again to resume"
+    ], stderr
+    # No new file once the tasks see the stop: besides the files finished when the signal came, at most two a
+    # worker (the one it was writing, and one it may start before it next asks the scheduler, every 0.2 s).
+    assert set(seen) <= set(finished) and len(finished) <= len(seen) + 2 * 2 < INTERRUPTED_FRAMES
+    assert temporaries(out) == []
+    for name in finished:
+        assert (out / name).read_bytes() == (pngs["reference"] / name).read_bytes(), name

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import shutil
 import subprocess
 import sys
 import warnings
@@ -37,6 +38,7 @@ from picamcal.output import (
     write_rgb_tiff,
 )
 from picamcal.raw.picamera2 import to_picamera2, write_picamera2_npy
+from picamcal.raw.processed import read_processed
 from test_cli import assert_bad_input, run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -90,7 +92,7 @@ def provenance(path: Path) -> dict:
     """The picamcal metadata of any output, read the way a user would, with the format's own reader."""
     if path.suffix == ".tiff":
         with tifffile.TiffFile(path) as tif:
-            text = tif.imagej_metadata["Info"] if tif.is_imagej else tif.pages[0].description
+            text = tif.pages[0].description
     elif path.suffix == ".png":
         text = Image.open(path).info["picamcal"]
     else:
@@ -118,27 +120,82 @@ def test_float32_tiff_holds_the_values_exactly_with_the_description_as_before(tm
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "b.tiff"), rgb)
 
 
-def test_uint16_tiff_is_an_imagej_hyperstack_with_its_scale_recorded(tmp_path):
+def test_uint16_tiff_is_one_16_bit_rgb_image_with_its_scale_recorded(tmp_path):
     rgb = patches()
     rgb[0, :5] = [[0.123456, 1.999, 2.5], [-0.1, np.nan, 0.5], [1 / 3, 2 / 3, 1.0], [1e-6, 0.99999, 1.00001], [0, 0, 0]]
     write_corrected(tmp_path / "u.tiff", rgb, "uint16-tiff", {"source": "u.dng"}, compression="zstd")
     with tifffile.TiffFile(tmp_path / "u.tiff") as tif:
-        assert tif.is_imagej
-        ij = tif.imagej_metadata
-        series = tif.series[0]
+        assert len(tif.pages) == 1 and not tif.is_imagej
+        page = tif.pages.first
         codes = tif.asarray()
-    assert (series.axes, series.shape, series.dtype) == ("CYX", (3, 64, 96), np.uint16)
-    assert (ij["channels"], ij["mode"], ij["Labels"]) == (3, "composite", ["red", "green", "blue"])
-    info = json.loads(ij["Info"])["picamcal"]
+    # One interleaved RGB image, as the float32 TIFF is, with the same tags: no colour profile in either.
+    assert (page.shape, page.dtype, page.photometric, page.planarconfig) == ((64, 96, 3), np.uint16, 2, 1)
+    assert 34675 not in page.tags and page.tags["Software"].value == f"picamcal {__version__}"
+    info = json.loads(page.description)["picamcal"]
     scale = info["scale"]
     assert scale == UINT16_WHITE == 32768 and info["output_format"] == "uint16-tiff" and info["source"] == "u.dng"
-    # ImageJ's calibration function gives Fiji's measurements in units of the white reference.
-    assert (ij["cf"], ij["c0"], ij["c1"], ij["vunit"]) == (0, 0.0, 1 / scale, "white")
-    assert ij["Ranges"] == (0.0, scale) * 3
+    assert info["encoding"] == "linear: value = code / 32768 (the white reference at 32768)"
     expected = np.clip(np.rint(np.nan_to_num(rgb.astype(float), nan=0.0) * scale), 0, 65535)
-    np.testing.assert_array_equal(codes, np.moveaxis(expected, -1, 0))  # exact: round(value * scale), clipped
-    assert codes[:, 16, 16].tolist() == [32768] * 3  # the white reference
-    assert codes[:, 0, 0].tolist() == [4045, 65503, 65535]  # 0.123456 and 1.999 in range, 2.5 clipped
+    np.testing.assert_array_equal(codes, expected)  # exact: round(value * scale), clipped
+    assert codes[16, 16].tolist() == [32768] * 3  # the white reference
+    assert codes[0, 0].tolist() == [4045, 65503, 65535]  # 0.123456 and 1.999 in range, 2.5 clipped
+
+
+def test_uint16_tiff_read_back_as_a_processed_image_is_the_linear_values(tmp_path):
+    rgb = patches()
+    path = write_corrected(tmp_path / "u.tiff", rgb, "uint16-tiff", {"source": "u.dng"})
+    image = read_processed(path)  # the default encoding is sRGB: the file's record says linear, code / 32768
+    assert image.encoding == "linear" and image.metadata["picamcal"]["scale"] == UINT16_WHITE
+    # Within half a code (quantisation); 1.5 clips at 65535 / 32768 = 1.99997, well above it.
+    np.testing.assert_allclose(image.rgb, rgb, atol=0.5 / UINT16_WHITE)
+
+
+def test_uint16_tiff_is_read_as_one_16_bit_rgb_image_by_other_readers(tmp_path):
+    path = write_corrected(tmp_path / "u.tiff", patches(), "uint16-tiff", {"source": "u.dng"})
+    # Pillow has no 16-bit RGB mode: it opens the file as one RGB image, in 8 bits.
+    with Image.open(path) as image:
+        assert (image.mode, image.size, getattr(image, "n_frames", 1)) == ("RGB", (96, 64), 1)
+    if shutil.which("tiffinfo") is None:
+        pytest.skip("libtiff's tiffinfo is not installed (Debian: libtiff-tools)")
+    info = subprocess.run(["tiffinfo", str(path)], capture_output=True, text=True, check=True).stdout
+    assert info.count("TIFF Directory") == 1 and "Bits/Sample: 16" in info and "Samples/Pixel: 3" in info
+    assert "Photometric Interpretation: RGB color" in info and "Planar Configuration: single image plane" in info
+
+
+def test_imagemagick_identifies_uint16_tiff_as_one_16_bit_rgb_image(tmp_path):
+    identify = shutil.which("identify")
+    if identify is None:
+        pytest.skip("ImageMagick's identify is not installed (Debian: imagemagick; .ci/run installs it)")
+    rgb = patches()
+    for compression in (None, "zstd"):
+        path = write_corrected(tmp_path / f"u-{compression}.tiff", rgb, "uint16-tiff", compression=compression)
+        if compression:  # ImageMagick's libtiff may lack zstd: then it says so, and the plain file is the check
+            probe = subprocess.run([identify, str(path)], capture_output=True, text=True)
+            if probe.returncode != 0:
+                continue
+        result = subprocess.run(
+            [identify, "-format", "%n %z %[colorspace] %[channels] %w %h\n", str(path)],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        # One image (%n), 16 bits (%z), in an RGB colour space (ImageMagick calls untagged RGB sRGB), 3 channels.
+        count, depth, space, channels, width, height = result.stdout.split()
+        assert (count, depth, width, height) == ("1", "16", "96", "64"), result.stdout
+        assert space in ("sRGB", "RGB") and channels.startswith(("srgb", "rgb")) and "a" not in channels[3:]
+        # And the codes it reads are the file's: the white patch at 32768, the grey (0.25) at 8192.
+        pixel = subprocess.run(
+            [
+                identify,
+                "-format",
+                " ".join(f"%[fx:round(65535*p{{{x},16}}.{c})]" for x in (16, 48) for c in "rgb"),
+                path,
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        assert pixel.split() == ["32768", "32768", "32768", "8192", "8192", "8192"], pixel
 
 
 @pytest.mark.parametrize("bits", [8, 16])
@@ -314,7 +371,7 @@ def test_correct_writes_each_format_skips_on_rerun_and_overwrites(run_dir, tmp_p
     if output_format == "float32-tiff":
         np.testing.assert_allclose(np.median(tifffile.imread(white), axis=(0, 1)), 1.0, atol=0.005)
     elif output_format == "uint16-tiff":
-        median = np.median(tifffile.imread(white), axis=(1, 2)) / info["scale"]
+        median = np.median(tifffile.imread(white), axis=(0, 1)) / info["scale"]
         np.testing.assert_allclose(median, 1.0, atol=0.005)
     else:
         codes = read_png16(white)[0] if output_format == "srgb-png16" else np.asarray(Image.open(white))
@@ -425,4 +482,4 @@ def test_the_examples_in_docs_outputs_md_run(tmp_path, monkeypatch):
         warnings.simplefilter("ignore", PicamcalWarning)
         for block in re.findall(r"```python\n(.*?)```", text, re.DOTALL):
             exec(compile(block, "docs/outputs.md", "exec"), {})
-    assert Image.open("target.png").info["icc_profile"] and tifffile.TiffFile("target.tiff").is_imagej
+    assert Image.open("target.png").info["icc_profile"] and tifffile.imread("target.tiff").shape[-1] == 3

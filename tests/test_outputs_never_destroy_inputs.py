@@ -52,7 +52,7 @@ def test_the_reported_data_losses_are_refused(setup):
         ("calibrate", "--white", "{captures}/white.dng", "--out", "{captures}/white.dng", "--overwrite"),
         ("correct", "{cal}", "{captures}", "--out", "{captures}", "--overwrite"),
         ("correct", "{cal}", "{captures}/target.dng", "--out", "{captures}/target.dng/x"),
-        ("correct", "{cal}", "{captures}", "--out", "{captures}/corrected"),
+        ("correct", "{cal}", "{captures}", "--out", "{root}"),  # captures/corrected, new, is allowed: beside them
         ("correct", "{cal}", "{captures}/target.dng", "--zarr", "{cal}", "--overwrite"),
         ("export-tuning", "{cal}", "--base", "{tuning}", "--out", "{tuning}", "--overwrite"),
         ("export-tuning", "{cal}", "--out", "{root}", "--overwrite"),

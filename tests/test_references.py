@@ -6,9 +6,10 @@ import json
 
 import pytest
 
-from picamcal import CalibrationInputError
-from picamcal.manifest import AcquisitionError
-from picamcal.references import find_references, read_manifest, role_of
+from picamcal import CalibrationInputError, calibrate
+from picamcal.calibration import LIGHTS
+from picamcal.manifest import ILLUMINATOR_LIGHTS, AcquisitionError
+from picamcal.references import find_references, read_manifest, reference_light, role_of
 
 
 @pytest.mark.parametrize(
@@ -19,6 +20,9 @@ from picamcal.references import find_references, read_manifest, role_of
         ("img_r0_g255_b0.dng", "green"),
         ("img_r0_g0_b255.npz", "blue"),
         ("white_2.raw", "white"),
+        ("white2.dng", "white"),  # a frame number straight after the role, as camera apps count shots
+        ("IMG_Black10.dng", "black"),
+        ("whites.dng", None),
         ("img_r255_g255_b255.dng", "white"),
         ("img_r0_g0_b0.dng", "black"),
         ("img_r255_g255_b0.dng", None),
@@ -71,6 +75,25 @@ def test_several_frames_of_a_role_are_a_list_in_natural_order(tmp_path):
     # headless dumps (.raw, .bin) count: calibrate is told their sensor and size
     assert [p.name for p in found["white"]] == ["white_1.raw", "white_2.dng", "white_5.bin", "white_10.dng"]
     assert found["black"].name == "black.dng"
+
+
+def test_a_white_and_a_numbered_white_are_both_frames_of_the_white(tmp_path):
+    # white.dng and white2.dng: neither is left out without a word; both are frames of the white, to average.
+    for name in ("white.dng", "white2.dng", "black.dng"):
+        (tmp_path / name).write_bytes(b"x")
+    assert [p.name for p in find_references(tmp_path)["white"]] == ["white.dng", "white2.dng"]
+
+
+def test_a_file_given_as_the_folder_is_named_for_what_it_is(tmp_path, linear_refs):
+    # A calibration is recognised by its content, whatever its name, as load_calibration reads it.
+    calibrate(linear_refs["white"]).save(tmp_path / "flat.npz")
+    (tmp_path / "flat.npz").rename(tmp_path / "jig.data")
+    with pytest.raises(CalibrationInputError) as caught:
+        find_references(tmp_path / "jig.data")
+    assert str(caught.value).startswith(f"{tmp_path / 'jig.data'} is a picamcal calibration, not a folder of reference")
+    (tmp_path / "white.dng").write_bytes(b"x")
+    with pytest.raises(CalibrationInputError, match=r"white\.dng: a file, not a folder of reference images: give its"):
+        find_references(tmp_path / "white.dng")
 
 
 def test_a_folder_without_a_white(tmp_path):
@@ -159,3 +182,34 @@ def test_a_manifest_lists_extra_colours_as_references(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps(record))
     found = {role: path.name for role, path in find_references(tmp_path).items()}
     assert found == {role: name for role, name in files.items() if role != "target"}
+
+
+def test_the_light_of_each_illuminator_is_one_the_accuracy_figures_know():
+    # Every illuminator picamcal acquire opens gives a known light, but the manual one (the user sets anything).
+    assert set(ILLUMINATOR_LIGHTS) | {"manual"} == {"serial", "gpio", "sim", "screen", "manual"}
+    assert set(ILLUMINATOR_LIGHTS.values()) <= set(LIGHTS)
+
+
+@pytest.mark.parametrize(
+    ("kind", "light"), [("serial", "jig"), ("gpio", "jig"), ("screen", "screen"), ("manual", None)]
+)
+def test_the_light_of_an_acquisition_comes_from_its_manifest(tmp_path, kind, light):
+    record = manifest([])
+    record["illuminator"] = {"kind": kind}
+    (tmp_path / "manifest.json").write_text(json.dumps(record))
+    assert reference_light(tmp_path) == light
+    if light is None:  # a manual run's light is whatever the user says
+        assert reference_light(tmp_path, "sheets") == "sheets"
+    else:  # another light than the manifest's is refused, naming the manifest
+        other = "sheets"
+        with pytest.raises(CalibrationInputError, match=f"manifest.json: the acquisition's illuminator was {kind},"):
+            reference_light(tmp_path, other)
+
+
+def test_a_light_is_one_of_the_known_ones_or_unknown(tmp_path):
+    assert reference_light(tmp_path) is None and reference_light(None) is None  # no manifest: not known
+    assert reference_light(tmp_path, "Screen") == "screen"
+    with pytest.raises(
+        CalibrationInputError, match=r"unknown light 'scren' \(expected jig, screen, sheets\); did you "
+    ):
+        reference_light(tmp_path, "scren")

@@ -163,6 +163,28 @@ def test_analyse_command(run_files, tmp_path):
     )
 
 
+@pytest.mark.slow
+def test_the_report_shows_the_expected_accuracy_of_the_light_the_calibration_records(tmp_path):
+    import dataclasses
+    import html as html_text
+    import re
+
+    cal = calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    pages = {}
+    for light in ("screen", None):
+        index = write_report(dataclasses.replace(cal, light=light), tmp_path / f"report-{light}")
+        page = html_text.unescape(re.sub(r"<[^>]+>", " ", index.read_text()))
+        pages[light] = " ".join(page.split())
+    # The screen's workflows (monitor colours at normal incidence 0.18 mean, docs/accuracy.md), none of the jig's.
+    screen = pages["screen"]
+    assert "Expected accuracy Light: screen (a monitor's full-screen colours), as the calibration records it." in screen
+    assert "screen screen monitor none 0.18 0.69 0.12" in screen and "jig-monitor" not in screen
+    # Not recorded: said so, and every light's workflows shown, the jig's (1.14 mean) and the screen's.
+    unknown = pages[None]
+    assert "Expected accuracy Unknown light: expected accuracy of each workflow" in unknown
+    assert "jig-monitor jig monitor none 1.14 2.82 0.12" in unknown and "screen screen monitor none 0.18" in unknown
+
+
 def test_report_module_has_no_side_effects_on_import():
     # matplotlib's backend stays untouched: the figures use Agg canvases of their own.
     code = "import picamcal.report, picamcal.analysis.figures, matplotlib; print(matplotlib.get_backend())"

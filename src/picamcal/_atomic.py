@@ -11,12 +11,15 @@ machine, whose process has ended. Another machine's temporaries (a shared folder
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import hashlib
 import os
 import re
 import shutil
 import socket
+import stat
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -31,6 +34,9 @@ _TEMPORARY = re.compile(
 )
 #: Folders whose stale temporaries this process has removed already (atomic_path looks once per folder).
 _CLEANED: set[Path] = set()
+#: The temporaries of atomic_path in this process that are being written (for discard_own_temporaries).
+_WRITING: set[Path] = set()
+_WRITING_LOCK = threading.Lock()
 
 
 @functools.cache
@@ -203,6 +209,8 @@ def atomic_path(path: str | os.PathLike[str], overwrite: bool = True) -> Iterato
         remove_stale_temporaries(folder)
         _CLEANED.add(folder)
     tmp = make_temporary(target)
+    with _WRITING_LOCK:
+        _WRITING.add(tmp.absolute())
     try:
         yield tmp
         os.replace(tmp, target)
@@ -212,13 +220,48 @@ def atomic_path(path: str | os.PathLike[str], overwrite: bool = True) -> Iterato
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    finally:
+        with _WRITING_LOCK:
+            _WRITING.discard(tmp.absolute())
 
 
-def refuse_inputs_as_output(output: str | os.PathLike[str], inputs: Iterable[str | os.PathLike[str] | None]) -> None:
+def discard_own_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
+    """Remove the temporaries this process's :func:`atomic_path` is writing in ``folder``; return them.
+
+    For a write abandoned in a thread that goes on (an interrupted batch that could not wait for it): the write
+    then fails to rename its temporary, so nothing half-written ever takes the output's name.
+
+    Examples
+    --------
+    >>> with atomic_path("notes.txt") as tmp:  # the rename then finds no temporary
+    ...     removed = discard_own_temporaries(".")
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.OutputError: notes.txt: cannot write: No such file or directory
+    >>> removed == [tmp.absolute()], Path("notes.txt").exists()
+    (True, False)
+    """
+    folder = Path(folder).absolute()
+    with _WRITING_LOCK:
+        mine = [path for path in _WRITING if path.parent == folder]
+    for path in mine:
+        path.unlink(missing_ok=True)
+    return mine
+
+
+def refuse_inputs_as_output(
+    output: str | os.PathLike[str],
+    inputs: Iterable[str | os.PathLike[str] | None],
+    *,
+    own_folder: Callable[[Path], bool] | None = None,
+) -> None:
     """Raise OutputError if ``output`` is, contains or lies inside one of ``inputs`` (None entries are skipped).
 
     Writing there could replace or delete what the command reads (``--out`` given the calibration, or the
-    folder of captures), so no command does it, ``--overwrite`` or not.
+    folder of captures), so no command does it, ``--overwrite`` or not. With ``own_folder``, an output folder
+    inside an input *folder* is allowed when it does not exist yet or ``own_folder(output)`` says it is
+    picamcal's own (:func:`is_own_folder`): a batch writing ``scans/corrected`` beside ``scans/*.dng``, whose
+    scans of ``scans`` pass over its own output. It still never is, or holds, an input.
 
     Examples
     --------
@@ -227,6 +270,8 @@ def refuse_inputs_as_output(output: str | os.PathLike[str], inputs: Iterable[str
     Traceback (most recent call last):
     ...
     picamcal.errors.OutputError: captures: holds the input captures/target.dng; choose another output
+    >>> Path("captures").mkdir()
+    >>> refuse_inputs_as_output("captures/corrected", ["captures"], own_folder=lambda p: False)  # new: allowed
     """
     out = Path(os.path.realpath(output))  # realpath, not resolve: a symlink loop is an input like any other
     for item in inputs:
@@ -238,7 +283,37 @@ def refuse_inputs_as_output(output: str | os.PathLike[str], inputs: Iterable[str
         if source.is_relative_to(out):
             raise OutputError(f"holds the input {item}; choose another output", output)
         if out.is_relative_to(source):
-            raise OutputError(f"lies inside the input {item}; choose another output", output)
+            if own_folder is not None and source.is_dir() and (not os.path.lexists(out) or own_folder(out)):
+                continue
+            beside = " (an output folder inside it must be new or picamcal's own)" if own_folder is not None else ""
+            raise OutputError(f"lies inside the input {item}{beside}; choose another output", output)
+
+
+def is_own_folder(folder: str | os.PathLike[str], is_own: Callable[[Path], bool]) -> bool:
+    """Whether ``folder`` is a folder that holds only what picamcal wrote: files ``is_own`` recognises and
+    picamcal's temporaries, besides hidden entries (which no scan reads and no output replaces). An empty
+    folder is one.
+
+    Examples
+    --------
+    >>> Path("out").mkdir()
+    >>> _ = Path("out/a.tiff").write_text("mine")
+    >>> is_own_folder("out", lambda p: p.read_text() == "mine")
+    True
+    >>> _ = Path("out/notes.txt").write_text("yours")
+    >>> is_own_folder("out", lambda p: p.read_text() == "mine")
+    False
+    """
+    try:
+        with os.scandir(folder) as entries:
+            for entry in entries:
+                if entry.name.startswith("."):
+                    continue
+                if not (entry.is_file(follow_symlinks=False) and _is_own(Path(entry.path), is_own)):
+                    return False
+    except OSError:  # not a folder, or one that cannot be read: not known to be ours
+        return False
+    return True
 
 
 def refuse_foreign(path: str | os.PathLike[str], is_own: Callable[[Path], bool], what: str) -> None:
@@ -260,3 +335,43 @@ def _is_own(path: Path, is_own: Callable[[Path], bool]) -> bool:
         return path.is_file() and not path.is_symlink() and bool(is_own(path))
     except Exception:  # whatever the bytes: a file the check cannot read is not one of ours
         return False
+
+
+def entry_kind(entry: Path) -> str:
+    """What a folder's entry is, when it is no regular file: what a folder scan says it passed over.
+
+    Examples
+    --------
+    >>> Path("gone.dng").symlink_to("nowhere.dng")
+    >>> entry_kind(Path("gone.dng"))
+    'a symbolic link to nothing'
+    """
+    try:
+        mode = entry.lstat().st_mode
+        if stat.S_ISLNK(mode):
+            try:
+                return f"a symbolic link to {_kind(entry.stat().st_mode)}"
+            except FileNotFoundError:
+                return "a symbolic link to nothing"
+            except OSError as exc:  # a loop (ELOOP), or a target that cannot be looked at
+                return "a symbolic link that loops" if exc.errno == errno.ELOOP else f"unreadable: {exc.strerror}"
+    except OSError as exc:
+        return f"unreadable: {exc.strerror}"
+    return _kind(mode)
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    kinds = {stat.S_ISFIFO: "a FIFO", stat.S_ISCHR: "a character device", stat.S_ISBLK: "a block device"}
+    kinds[stat.S_ISSOCK] = "a socket"
+    return next((name for test, name in kinds.items() if test(mode)), "not a regular file")
+
+
+def passed_over_message(passed_over: dict[Path, list[str]]) -> str:
+    """One warning for every entry the folders' scans passed over, by folder."""
+    parts = []
+    for folder, entries in passed_over.items():
+        what = "entry that is not a regular file" if len(entries) == 1 else "entries that are not regular files"
+        parts.append(f"{folder}: passed over {len(entries)} {what}: {', '.join(entries)}")
+    return "; ".join(parts)

@@ -4,6 +4,10 @@ Each reader refuses what it cannot use with its own picamcal error naming the fi
 file or is too large, bytes that are not UTF-8, text that is not JSON, NaN, infinities and numbers too large for
 a float, nesting deeper than :data:`MAX_DEPTH` (which would end in a RecursionError further on), and, through a
 :class:`Fields` checker, values of the wrong type, count or range.
+
+libcamera's tuning files are read as libcamera reads them (:func:`read_libcamera_yaml`): with libyaml, the YAML
+parser libcamera itself uses, which accepts what strict JSON refuses (trailing commas, comments) and refuses some
+of what it accepts (duplicated keys, aliases, a list of 2,000 items).
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -109,6 +114,150 @@ def _depth(value: Any) -> int:
             if depth <= MAX_DEPTH:
                 stack.extend((child, depth + 1) for child in (item.values() if isinstance(item, dict) else item))
     return deepest
+
+
+#: libcamera's YAML parser reads at most this many items into one list or mapping (src/libcamera/yaml_parser.cpp:
+#: a sentinel of 2,000 parser events per collection, the last of which must close it).
+LIBCAMERA_MAX_ITEMS = 1999
+# The texts libcamera's value accessors (src/libcamera/value_node.cpp) read as numbers: a whole number for
+# std::from_chars (an optional minus, digits) and a decimal one for strtod. Anything else stays text.
+_WHOLE = re.compile(r"-?[0-9]+")
+_DECIMAL = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
+
+
+def read_libcamera_yaml(
+    path: str | os.PathLike[str], error: type[PicamcalError], what: str, max_bytes: int = MAX_JSON_BYTES
+) -> Any:
+    """The content of a file libcamera reads with its YAML parser (a tuning file), or ``error`` naming the file.
+
+    As :func:`read_json` for the file itself; the text as :func:`parse_libcamera_yaml`.
+
+    Examples
+    --------
+    >>> _ = Path("tuning.json").write_text('{"version": 2.0, "algorithms": [{"rpi.black_level": {}},],}')
+    >>> read_libcamera_yaml("tuning.json", PicamcalError, "a tuning file")["algorithms"]  # a trailing comma
+    [{'rpi.black_level': {}}]
+    """
+    size = require_regular_file(path, error)
+    if size > max_bytes:
+        raise error(f"is {size / 2**20:.0f} MB, far larger than {what} (at most {max_bytes >> 20} MB)", path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise error(f"cannot read: {exc.strerror or exc}", path) from None
+    return parse_libcamera_yaml(data, error, what, path)
+
+
+def parse_libcamera_yaml(
+    data: bytes | str, error: type[PicamcalError], what: str, path: str | os.PathLike[str] | None = None
+) -> Any:
+    """Parse text as libcamera's ``YamlParser`` does (src/libcamera/yaml_parser.cpp), raising ``error`` where it fails.
+
+    libcamera parses tuning files with libyaml, so a JSON file may have trailing commas or ``#`` comments, and any
+    YAML 1.1 a single document of lists, mappings and plain values holds. Like libcamera, this refuses a text
+    libyaml cannot parse (naming the line and column), an empty one or several documents, an alias (``*name``),
+    a key that is a list or mapping, a key given twice in one mapping, and a list or mapping of more than
+    :data:`LIBCAMERA_MAX_ITEMS` items; it also refuses nesting deeper than :data:`MAX_DEPTH`.
+
+    libcamera keeps every value as text and converts it when an algorithm asks; here ``true`` and ``false``
+    become booleans, ``null`` None, whole numbers ints and other finite decimal numbers floats (as JSON would
+    read them, and whether quoted or not, as libcamera ignores quoting); everything else stays a string.
+    Parsed with libyaml's C parser where PyYAML has it (its wheels do); PyYAML's pure-Python parser, the
+    fallback, refuses tabs that libyaml takes between tokens (15 of Raspberry Pi's files have one), so for it tabs
+    become spaces first (lines and columns stay those of the file).
+
+    Examples
+    --------
+    >>> parse_libcamera_yaml(b'{"a": [1, 2.5, "3"], # a comment\\n "b": true,}', PicamcalError, "a tuning file")
+    {'a': [1, 2.5, 3], 'b': True}
+    >>> parse_libcamera_yaml(b'{"a": 1,\\n "a": 2}', PicamcalError, "a tuning file", "t.json")
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: t.json: not a tuning file: the key 'a' appears twice in one mapping (line 2); \
+libcamera refuses that
+    """
+    import yaml
+
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    loader_class = getattr(yaml, "CSafeLoader", None)
+    if loader_class is None:
+        loader_class, data = yaml.SafeLoader, data.replace(b"\t", b" ")
+    loader = loader_class(data)
+    try:
+        return _compose(loader, yaml, error, what, path)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        context = f" ({exc.context})" if exc.context else ""
+        raise error(f"not {what}: {exc.problem}{where}{context}", path) from None
+    except yaml.YAMLError as exc:  # bytes that are not text (libyaml reads UTF-8 and UTF-16)
+        raise error(f"not {what}: {' '.join(str(exc).split())}", path) from None
+    finally:
+        loader.dispose()
+
+
+def _compose(loader: Any, yaml: Any, error: type[PicamcalError], what: str, path: Any) -> Any:
+    """Build the value from libyaml's events, by the rules of libcamera's ``YamlParserContext::parseContent``."""
+
+    def fail(problem: str, event: Any) -> NoReturn:
+        raise error(f"not {what}: {problem} (line {event.start_mark.line + 1}); libcamera refuses that", path)
+
+    events = iter(loader.get_event, None)
+    next(events)  # the stream's start
+    event = next(events)
+    if not isinstance(event, yaml.DocumentStartEvent):
+        raise error(f"not {what}: the file is empty", path)
+    root: list[Any] = []
+    # Open lists and mappings: [container, the pending key of a mapping, the line it started on].
+    stack: list[list[Any]] = []
+    parent: list[Any] = [root, None, 0]
+    for event in events:
+        if isinstance(event, yaml.DocumentEndEvent):
+            break
+        if isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+            parent = stack.pop()
+            continue
+        if isinstance(event, yaml.AliasEvent):
+            fail(f"an alias (*{event.anchor})", event)
+        container, key = parent[0], parent[1]
+        if isinstance(container, dict) and key is None:
+            if not isinstance(event, yaml.ScalarEvent):
+                fail("a key that is a list or a mapping", event)
+            if event.value in container:
+                fail(f"the key {event.value[:40]!r} appears twice in one mapping", event)
+            parent[1] = event.value
+            continue
+        if len(container) >= LIBCAMERA_MAX_ITEMS:
+            fail(f"a list or mapping of more than {LIBCAMERA_MAX_ITEMS} items", event)
+        if isinstance(event, yaml.ScalarEvent):
+            value = _libcamera_value(event.value)
+        else:
+            value = {} if isinstance(event, yaml.MappingStartEvent) else []
+            if len(stack) >= MAX_DEPTH:
+                raise error(f"not {what}: nested more than {MAX_DEPTH} levels deep", path)
+        if isinstance(container, dict):
+            container[key] = value
+            parent[1] = None
+        else:
+            container.append(value)
+        if not isinstance(event, yaml.ScalarEvent):
+            stack.append(parent)
+            parent = [value, None, event.start_mark.line]
+    if loader.check_event(yaml.DocumentStartEvent):
+        raise error(f"not {what}: holds more than one YAML document, and libcamera reads one", path)
+    loader.get_event()  # the stream's end: libyaml has checked there is nothing else
+    return root[0]
+
+
+def _libcamera_value(text: str) -> Any:
+    """A plain value as JSON would hold it: libcamera's booleans, whole and decimal numbers (see above)."""
+    if _WHOLE.fullmatch(text) and len(text) < 4000:  # Python refuses to convert longer ones
+        return int(text)
+    if _DECIMAL.fullmatch(text):
+        value = float(text)
+        return value if math.isfinite(value) else text  # out of a double's range: libcamera's strtod refuses it
+    return {"true": True, "false": False, "null": None}.get(text, text)
 
 
 class Fields:

@@ -34,7 +34,7 @@ from .errors import CalibrationFileError, CalibrationInputError, PicamcalWarning
 from .raw import RawImage, read_raw
 from .raw.model import require_black_level
 from .records import sha256_file
-from .references import COLOUR_NAME, COLOURS, colour_role
+from .references import COLOUR_NAME, COLOURS, check_same_settings, colour_role
 
 #: Fraction of clipped white pixels above which the white is refused.
 MAX_CLIPPED_FRACTION = 1e-4
@@ -255,12 +255,7 @@ def _load_reference(
             first = raw
         else:
             _check_like(raw, first, f"first {role} frame")
-            if not np.array_equal(raw.black_level, first.black_level, equal_nan=True):
-                raise CalibrationInputError(
-                    f"black level {list(raw.black_level)} differs from the first {role} frame's "
-                    f"{list(first.black_level)}: frames of one reference must come from the same settings",
-                    raw.source,
-                )
+            check_same_settings(raw, first, role)
         clipped = int(np.count_nonzero(raw.bayer >= raw.white_level))
         if role == "white":
             _check_clipping(raw, clipped)
@@ -571,7 +566,7 @@ def calibrate_in_situ(
         problem = f"size {first.width}x{first.height}, the jig calibration is for {jig.width}x{jig.height}"
     elif first.pattern != jig.pattern:
         problem = f"Bayer pattern {first.pattern}, the jig calibration is for {jig.pattern}"
-    elif first.sensor and jig.sensor and first.sensor != jig.sensor:
+    elif first.sensor and jig.sensor and first.sensor != jig.sensor and not _sensor_by_size(first):
         problem = f"sensor {first.sensor}, the jig calibration is for {jig.sensor}"
     else:
         problem = ""
@@ -589,9 +584,12 @@ def calibrate_in_situ(
     provenance["in_situ"] = {"unmixing_from": info, "jig_inputs": [i.get("name") for i in jig.inputs]}
     if jig.noise_limit is not None:  # the jig's bounded unmixing carries over; its bound was met with the jig's white
         provenance["in_situ"]["jig_noise_limit"] = jig.noise_limit
+    record = _record(refs, jig.bin_size, smoothing, black_level)
+    if jig.sensor and (record["sensor"] is None or _sensor_by_size(first)):  # the jig's, where the white does not say
+        record["sensor"] = jig.sensor
     return dataclasses.replace(
         jig,
-        **_record(refs, jig.bin_size, smoothing, black_level),
+        **record,
         provenance=provenance,
         site_responses=np.concatenate([new_white[None], colours]).astype(np.float32),
         **_flat_field(new_white, first.pattern),
@@ -757,11 +755,17 @@ def _refuse_or_warn(bad: np.ndarray, source: str, refusal: str, already: np.ndar
         )
 
 
+def _sensor_by_size(raw: RawImage) -> bool:
+    """Whether ``raw``'s sensor was taken from its frame size (:func:`picamcal.raw.read_raw`), not named."""
+    return raw.metadata.get("sensor_source") == "size"
+
+
 def _record(refs: list[_Reference], bin_size: int, smoothing: float, black_level: tuple[float, ...]) -> dict[str, Any]:
     """The calibration's record fields (geometry and levels) from its references, the white first."""
     first = refs[0].raw
     return {
-        "sensor": next((r.raw.sensor for r in refs if r.raw.sensor), None),
+        # A sensor a file names (or --sensor) before one taken from a frame's size.
+        "sensor": next((r.sensor for r in sorted((r.raw for r in refs), key=_sensor_by_size) if r.sensor), None),
         "pattern": first.pattern,
         "width": first.width,
         "height": first.height,

@@ -6,7 +6,7 @@ smoothly from the bins (lens shading and colour balance, ``Cb LST = 1 / W``); de
 He and Cutler 2004, from the colour-demosaicing library); apply the interpolated 3x3 matrix field
 per pixel. The modes (:class:`picamcal.modes.Mode`) are steps along it: ``uncorrected`` (colour balance
 only), ``flat`` (the white becomes 1.0 everywhere), ``centre`` (then ``U``, the paper's recommended
-correction) and ``pure`` (then ``Cx U``).
+correction) and ``pure`` (then ``Cx U``). Without a mode, the best the calibration does (:func:`choose_mode`).
 
 Engines (the ``engine`` argument of :func:`correct`): ``numba`` and ``numpy`` run the fused
 full-resolution pass of :mod:`picamcal.kernels` (no full-resolution gain or matrix field in memory;
@@ -36,7 +36,7 @@ from .kernels import (
     numba_available,
     output_array,
 )
-from .modes import Mode
+from .modes import Mode, best_mode
 from .raw.model import RawImage, require_black_level, site_channels
 from .raw.processed import ProcessedImage
 
@@ -205,10 +205,33 @@ def with_known_black_level(raw: RawImage, calibration: Calibration) -> RawImage:
     return dataclasses.replace(raw, black_level=calibration.black_level)
 
 
+def choose_mode(calibration: Calibration, mode: str | Mode | None = None) -> Mode:
+    """The mode a correction with ``calibration`` takes: ``mode`` if the calibration does it, else an error; without
+    one, the best it does (:func:`picamcal.modes.best_mode`: ``centre``, or ``flat`` for a white-only calibration).
+
+    Raises
+    ------
+    CalibrationFileError
+        ``centre`` or ``pure`` asked of a white-only calibration (the message names ``--mode flat``).
+    ValueError
+        An unknown mode.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> choose_mode(picamcal.calibrate(refs["white"])), choose_mode(picamcal.calibrate(**refs))
+    (<Mode.FLAT: 'flat'>, <Mode.CENTRE: 'centre'>)
+    >>> choose_mode(picamcal.calibrate(**refs), "pure")
+    <Mode.PURE: 'pure'>
+    """
+    return best_mode(calibration.has_unmixing) if mode is None else calibration.check_mode(mode)
+
+
 def correct(
     raw: RawImage,
     calibration: Calibration,
-    mode: str | Mode = Mode.CENTRE,
+    mode: str | Mode | None = None,
     binned: bool = False,
     *,
     engine: str = "auto",
@@ -224,10 +247,11 @@ def correct(
         (NaN) black level takes the calibration's dark-frame level (:func:`with_known_black_level`).
     calibration : Calibration
         From :func:`picamcal.calibrate` or :func:`picamcal.load_calibration`.
-    mode : {"centre", "flat", "pure", "uncorrected"} or Mode
+    mode : {"centre", "flat", "pure", "uncorrected"} or Mode, optional
         See :mod:`picamcal.modes`; ``centre`` is the paper's recommended correction. A flat calibration
         (white only) does ``uncorrected`` and ``flat``; the others raise CalibrationFileError. The old name
-        ``balance`` is ``uncorrected``, with a warning.
+        ``balance`` is ``uncorrected``, with a warning. Default: the best the calibration does (:func:`choose_mode`:
+        ``centre``, or ``flat`` for a white-only calibration).
     binned : bool
         Return the bin-resolution image (one value per bin and channel, no demosaicing) instead of
         the full-resolution one.
@@ -239,19 +263,21 @@ def correct(
         into a new array: when correcting many frames, reusing one buffer saves the cost of touching fresh
         memory (about a fifth of the time of a 12-megapixel frame with the numba kernel). Not with ``binned``.
     dtype : {np.float32, np.uint16}
-        ``np.uint16`` returns the ``uint16-tiff`` codes instead, planar (3, H, W): ``round(value *``
+        ``np.uint16`` returns the ``uint16-tiff`` codes instead, (H, W, 3) as the image: ``round(value *``
         :data:`UINT16_WHITE` ``)`` clipped to 0..65535, NaN as 0, bit for bit those of
         :func:`picamcal.output.tiff.encode_uint16` of the float32 result, but computed row by row with no
         float32 image at full resolution (half the memory). Not with ``binned``.
 
     Returns
     -------
-    ndarray of float32, shape (H, W, 3) or (nby, nbx, 3); or of uint16, shape (3, H, W)
+    ndarray of float32, shape (H, W, 3) or (nby, nbx, 3); or of uint16, shape (H, W, 3)
         Linear RGB in which the calibration's white reference is 1.0 (``flat``, ``centre`` and ``pure``),
         or its uint16 codes.
 
     Raises
     ------
+    CalibrationFileError
+        A mode the calibration cannot do (:func:`choose_mode`), or an image it does not fit.
     OutputError
         ``out`` is not an array of the result's shape and type.
 
@@ -269,9 +295,9 @@ def correct(
     (True, (15, 20, 3))
     >>> codes = picamcal.correct(target, cal, dtype=np.uint16)  # uint16-tiff codes, the white at 32768
     >>> codes.shape, codes.dtype
-    ((3, 240, 320), dtype('uint16'))
+    ((240, 320, 3), dtype('uint16'))
     """
-    mode = calibration.check_mode(mode)
+    mode = choose_mode(calibration, mode)
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENGINES)}")
     to_codes = np.dtype(dtype) == np.uint16
@@ -330,7 +356,7 @@ def _correct_reference(raw: RawImage, calibration: Calibration, mode: Mode) -> n
 def correct_processed(
     image: ProcessedImage | np.ndarray,
     calibration: Calibration,
-    mode: str | Mode = Mode.CENTRE,
+    mode: str | Mode | None = None,
     *,
     white: ProcessedImage | np.ndarray | None = None,
     ccm: np.ndarray | None = None,
@@ -354,8 +380,9 @@ def correct_processed(
     image : ProcessedImage or ndarray (H, W, 3)
         Linear RGB (see :func:`picamcal.raw.processed.read_processed` for undoing the tone curve).
     calibration : Calibration
-    mode : {"centre", "pure", "flat", "uncorrected"} or Mode
-        ``flat`` and ``uncorrected`` apply only the residual flat field (nothing without ``white``).
+    mode : {"centre", "pure", "flat", "uncorrected"} or Mode, optional
+        ``flat`` and ``uncorrected`` apply only the residual flat field (nothing without ``white``). Default: the
+        best the calibration does (:func:`choose_mode`).
     white : ProcessedImage or ndarray (H, W, 3), optional
         A processed image of the white reference, at the same size and settings.
     ccm : ndarray (3, 3), optional
@@ -393,7 +420,7 @@ def correct_processed(
     >>> correct_processed(isp_output[::2, ::2], cal, "centre").shape  # a scaled output: only U is left to do
     (120, 160, 3)
     """
-    mode = calibration.check_mode(mode)
+    mode = choose_mode(calibration, mode)
     rgb = np.array(image.rgb if isinstance(image, ProcessedImage) else image, dtype=np.float32)
     source = image.metadata.get("path", "<image>") if isinstance(image, ProcessedImage) else "<image>"
     if rgb.ndim != 3 or rgb.shape[-1] != 3:

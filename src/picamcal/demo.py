@@ -51,8 +51,9 @@ def run_demo(
 
     Writes into ``out_dir``: ``raw/`` (the simulated DNG files, layout and ground truth),
     ``calibration.npz``, ``target_<mode>.png`` previews (sRGB), ``lens_shading_legacy.npy`` (the legacy
-    firmware's table), ``tuning_<target>.json`` for each base tuning file given, ``figures.json`` and the
-    HTML report ``report/index.html``.
+    firmware's table), ``tuning_<target>.json`` (libcamera tuning files with the calibration's lens shading:
+    ``tuning_bcm2835.json`` for a Pi 4 and ``tuning_pisp.json`` for a Pi 5, from the sensor's stock files, or
+    one for each base given), ``figures.json`` and the HTML report ``report/index.html``.
 
     Parameters
     ----------
@@ -68,7 +69,8 @@ def run_demo(
         Raw format of the simulated files (``dng``, ``brcm``, ``npy``, ``npz``: see
         :data:`picamcal.simulate.RAW_WRITERS`); they are read back through :func:`picamcal.read_raw`.
     tuning_bases : paths
-        libcamera tuning files to write a static lens shading table into (one output per base).
+        libcamera tuning files to write a static lens shading table into (one output per base); default the
+        sensor's stock files for vc4 and pisp (:func:`picamcal.export.tuning.stock_tuning_bases`), those it has.
     progress : callable, optional
         Called with the description of each step in :data:`STEPS` as it starts.
     overwrite : bool
@@ -80,7 +82,8 @@ def run_demo(
     dict
         The figures, per mode: white flatness (CV in %, of an independent white frame, binned),
         corner-vs-centre CIEDE2000 (max and mean), corner saturation relative to the centre, and the
-        worst noise penalty.
+        worst noise penalty; per export (``exports``), the white's flatness through it and, for a tuning
+        file, its base and the colour gains that make the white neutral through it.
 
     Raises
     ------
@@ -95,12 +98,16 @@ def run_demo(
     >>> figures = run_demo("demo-out", "imx219", size=(320, 240))
     >>> figures["modes"]["centre"]["max_delta_e"] < 1.5 < figures["modes"]["uncorrected"]["max_delta_e"]
     True
+    >>> sorted(figures["exports"])
+    ['lens_shading_legacy.npy', 'tuning_bcm2835.json', 'tuning_pisp.json']
     """
-    from .export.tuning import load_tuning
+    from .export.tuning import load_tuning, stock_tuning_bases, stock_tuning_files
 
     step = progress or (lambda _: None)
     out = Path(out_dir)
     camera = run_camera(sensor, size=size, seed=seed, fmt=fmt)
+    if not tuning_bases and "" in stock_tuning_files(sensor):  # the sensor's stock files, for each target that has one
+        tuning_bases = stock_tuning_bases(sensor)[0]
     bases = [(Path(base), load_tuning(base)) for base in tuning_bases]
     _check_folder(out, overwrite)
     try:
@@ -203,9 +210,13 @@ def _write_exports(cal: Calibration, out: Path, bases: Sequence[tuple[Path, dict
     legacy = bin_sites(apply_legacy_table(white, table), cal.bin_size)
     exports["lens_shading_legacy.npy"] = {"white_flatness_percent": float(100 * np.max(flatness(legacy)))}
     for base, base_tuning in bases:
-        tuning = export_tuning(cal, base_tuning, base_sensor=sensor_of_tuning_file(base))
+        tuning = export_tuning(cal, base_tuning, base_sensor=sensor_of_tuning_file(base), base_path=base)
         name = f"tuning_{tuning['target']}.json"
         save_tuning(out / name, tuning, overwrite=True)
         rgb = apply_tuning(white, tuning)
-        exports[name] = {"base": str(base), "white_flatness_percent": float(100 * np.max(flatness(rgb, bin_size=16)))}
+        exports[name] = {
+            "base": str(base),
+            "white_flatness_percent": float(100 * np.max(flatness(rgb, bin_size=16))),
+            "colour_gains": tuning["picamcal"]["colour_gains"],
+        }
     return exports

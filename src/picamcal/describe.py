@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import PicamcalError, RawFormatError
+from ._atomic import entry_kind, passed_over_message
+from .calibrate import MAX_CLIPPED_FRACTION
+from .errors import PicamcalError, PicamcalWarning, RawFormatError
 from .manifest import FRAME_FORMAT, MANIFEST_FORMAT
-from .raw import RawImage, read_raw
+from .raw import HEADLESS_SUFFIXES, PROCESSED_SUFFIXES, RAW_SUFFIXES, RawImage, read_raw
+from .raw.model import require_black_level
 from .raw.picamera2 import SIDECAR_FORMAT
 from .raw.processed import read_processed
 
@@ -21,9 +25,11 @@ _METADATA_KEYS = ("exposure_time_s", "analogue_gain", "digital_gain", "iso", "ma
 def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dict[str, Any]:
     """A JSON-serialisable description of a raw or processed image file.
 
-    Raw files give format, sensor, size, Bayer pattern, bit depth, black and white levels and the
-    exposure metadata; a file that is not raw but is an image (a JPEG without a raw block, a PNG) is
-    described as processed. Anything else raises the reader's error.
+    Raw files give format, sensor, size, Bayer pattern, bit depth, black and white levels, the exposure metadata,
+    the fraction of pixels at the white level (``clipped_fraction``) and ``notes``: what looks wrong, each with what
+    to do (an unknown black level; more pixels clipped than calibrate takes in a white reference,
+    :data:`picamcal.calibrate.MAX_CLIPPED_FRACTION`). A file that is not raw but is an image (a JPEG without a raw
+    block, a PNG) is described as processed. Anything else raises the reader's error.
 
     Examples
     --------
@@ -32,6 +38,8 @@ def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> d
     >>> record = describe("white.dng")
     >>> record["format"], record["sensor"], record["width"], record["height"], record["pattern"], record["bit_depth"]
     ('dng', 'imx219', 64, 48, 'BGGR', 10)
+    >>> record["clipped_fraction"], record["notes"]
+    (0.0, [])
     """
     path = Path(path)
     try:
@@ -65,7 +73,26 @@ def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> d
     }
     keys = (*_METADATA_KEYS, "declared_pattern", "frames")
     record.update({k: _plain(raw.metadata[k]) for k in keys if k in raw.metadata})
+    clipped = int(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
+    record.update(clipped_fraction=clipped, notes=[])
+    if not all(np.isfinite(raw.black_level)):
+        record["notes"].append(_unknown_black_level(raw))
+    if clipped > MAX_CLIPPED_FRACTION:
+        record["notes"].append(
+            f"{100 * clipped:.3g} % of its pixels are at the white level ({raw.white_level}): as a white reference "
+            f"calibrate refuses it (it takes up to {100 * MAX_CLIPPED_FRACTION:g} %); reduce the exposure"
+        )
     return record
+
+
+def _unknown_black_level(raw: RawImage) -> str:
+    """Why a raw image's black level is unknown, and what gives it (the fix :func:`require_black_level` names)."""
+    why = "headless dumps carry none" if raw.metadata.get("format") == "headless" else "the file records none"
+    try:
+        require_black_level(raw)
+    except RawFormatError as exc:
+        return f"black level unknown: {why}; {exc.problem.rsplit('; ', 1)[-1]}"
+    return f"black level unknown: {why}"
 
 
 def _plain(value: Any) -> Any:
@@ -132,7 +159,14 @@ def what_else(path: Path) -> str | None:
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError):
-        return None
+        from ._json import read_libcamera_yaml
+
+        try:  # a tuning file with what libcamera's YAML parser takes and JSON does not (a trailing comma)
+            record = read_libcamera_yaml(path, PicamcalError, "JSON")
+        except PicamcalError:
+            return None
+        if not isinstance(record, dict) or "algorithms" not in record:
+            return None
     if not isinstance(record, dict):
         return "JSON file"
     if isinstance(record.get("format"), str) and record["format"] in _JSON_KINDS:
@@ -144,12 +178,19 @@ def what_else(path: Path) -> str | None:
     return "JSON file"
 
 
+#: What :func:`survey` calls a file that is no image and nothing else picamcal knows (notes, a README, a CSV).
+NOT_AN_IMAGE = "not an image"
+#: Suffixes of the images picamcal reads: a file with one of them that cannot be read is an image gone wrong.
+IMAGE_SUFFIXES = frozenset((*RAW_SUFFIXES, *PROCESSED_SUFFIXES, *HEADLESS_SUFFIXES))
+
+
 def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dict[str, Any]:
     """:func:`describe` for any file, never raising: what is not an image is named, what cannot be read says why.
 
     The record has ``"readable": False`` and an ``"error"`` for a file picamcal cannot read; a file that is not
     an image but that picamcal knows (a calibration, a JSON sidecar, a manifest, a tuning file) is readable,
-    with its ``"format"`` saying what it is.
+    with its ``"format"`` saying what it is; any other file that is not an image (no image's suffix, no image's
+    content: notes, a ``MANIFEST.md``) is readable too, as :data:`NOT_AN_IMAGE`, the reader's error its ``"reason"``.
 
     Examples
     --------
@@ -158,8 +199,11 @@ def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dic
     'acquisition manifest (picamcal acquire)'
     >>> _ = Path("notes.txt").write_text("focus at 3 mm")
     >>> record = survey("notes.txt")
-    >>> record["readable"], record["error"]
-    (False, 'not a raw image format picamcal reads (DNG, JPEG+raw, picamera2 .npy or picamcal .npz)')
+    >>> record["readable"], record["format"], record["reason"]
+    (True, 'not an image', 'not a raw image format picamcal reads (DNG, JPEG+raw, picamera2 .npy or picamcal .npz)')
+    >>> _ = Path("broken.dng").write_text("focus at 3 mm")
+    >>> survey("broken.dng")["readable"]
+    False
     """
     path = Path(path)
     other = what_else(path) if path.is_file() else None
@@ -168,6 +212,8 @@ def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dic
     try:
         return {**describe(path, read), "readable": True}
     except PicamcalError as exc:
+        if path.is_file() and path.suffix.lower() not in IMAGE_SUFFIXES and exc.path in (None, str(path)):
+            return {"path": str(path), "format": NOT_AN_IMAGE, "raw": False, "readable": True, "reason": exc.problem}
         record = {"path": str(path), "format": "-", "raw": False, "readable": False, "error": exc.problem}
         if exc.path not in (None, str(path)):  # the problem is in another file, e.g. the sidecar
             record["error_path"] = exc.path
@@ -186,9 +232,69 @@ def files_of(items: list[Path]) -> list[Path]:
     ['run1/black.dng', 'run1/white.dng', 'extra.dng']
     """
     found: list[Path] = []
+    passed_over: dict[Path, list[str]] = {}
+    images = (*RAW_SUFFIXES, *HEADLESS_SUFFIXES, *PROCESSED_SUFFIXES)
     for item in items:
         if item.is_dir():
-            found.extend(sorted(p for p in item.iterdir() if not p.name.startswith(".") and p.is_file()))
+            for entry in sorted(p for p in item.iterdir() if not p.name.startswith(".")):
+                if entry.is_file():
+                    found.append(entry)
+                elif entry.suffix.lower() in images:  # a dangling link or a FIFO named as an image: said, not read
+                    passed_over.setdefault(item, []).append(f"{entry.name} ({entry_kind(entry)})")
         else:
             found.append(item)
+    if passed_over:
+        warnings.warn(passed_over_message(passed_over), PicamcalWarning, stacklevel=2)
     return found
+
+
+def inspect_files(items: list[Path], read: Callable[[Path], RawImage] = read_raw) -> list[dict[str, Any]]:
+    """What ``picamcal inspect`` lists: :func:`survey` of each file as given and of every file of each folder, each
+    record with the ``"warnings"`` reading it gave (without the file's name, which the listing shows).
+
+    Raises
+    ------
+    PicamcalError
+        A folder with no images: empty, or holding only files that are not images (:data:`NOT_AN_IMAGE`); or one
+        file given alone that cannot be read or is not an image (as every command says of its one file).
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, render
+    >>> Path("run1").mkdir()
+    >>> _ = picamcal.write_dng("run1/white.dng", render(make_camera("imx219", size=(64, 48)), "white", rng=1))
+    >>> _ = Path("run1/MANIFEST.md").write_text("# white, 1 ms")
+    >>> [(Path(r["path"]).name, r["format"], r["readable"]) for r in inspect_files([Path("run1")])]
+    [('MANIFEST.md', 'not an image', True), ('white.dng', 'dng', True)]
+    >>> Path("empty").mkdir()
+    >>> inspect_files([Path("empty")])
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: empty: no images in this folder: it is empty
+    """
+    records: list[dict[str, Any]] = []
+    for item in items:
+        found = []
+        for path in files_of([item]):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                record = survey(path, read)
+            record["warnings"] = [
+                str(w.message).removeprefix(f"{path}: ") for w in caught if issubclass(w.category, PicamcalWarning)
+            ]
+            found.append(record)
+        others = [Path(r["path"]).name for r in found if r["format"] == NOT_AN_IMAGE]
+        if item.is_dir() and len(others) == len(found):
+            listed = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+            what = (
+                f"only {len(others)} other file{'s' if len(others) > 1 else ''}: {listed}" if others else "it is empty"
+            )
+            raise PicamcalError(f"no images in this folder: {what}", item)
+        records += found
+    if len(items) == 1 and not items[0].is_dir():
+        record = records[0]
+        if not record["readable"]:
+            raise PicamcalError(record["error"], record.get("error_path", items[0]))
+        if record["format"] == NOT_AN_IMAGE:
+            raise PicamcalError(record["reason"], items[0])
+    return records

@@ -44,19 +44,34 @@ class OutputError(PicamcalError):
     """An output cannot be written (exists already, or the place is not writable)."""
 
 
-def closest(value: str, choices: Iterable[str], cutoff: float = 0.6) -> str | None:
+def closest(value: str, choices: Iterable[str], cutoff: float = 0.6, *, parts: bool = False) -> str | None:
     """The choice nearest ``value``, compared case-insensitively, for a "did you mean"; None if none is close.
+
+    With ``parts``, a value that is not near a whole choice may be near one of its parts (the words between
+    ``-``, ``_`` and ``+``): ``png`` for ``srgb-png``, the first such choice when several share the part.
 
     Examples
     --------
     >>> closest("center", ["balance", "flat", "centre", "pure"]), closest("xyz", ["flat"])
     ('centre', None)
+    >>> formats = ["float32-tiff", "uint16-tiff", "srgb-png", "srgb-jpeg"]
+    >>> closest("png", formats), closest("png", formats, parts=True), closest("jpg", formats, parts=True)
+    (None, 'srgb-png', 'srgb-jpeg')
     """
     import difflib
+    import re
 
+    choices = list(choices)
     by_key = {c.lower(): c for c in choices}
     close = difflib.get_close_matches(value.lower(), list(by_key), n=1, cutoff=cutoff)
-    return by_key[close[0]] if close else None
+    if close or not parts:
+        return by_key[close[0]] if close else None
+    by_part: dict[str, str] = {}
+    for choice in choices:
+        for part in re.split(r"[-_+]", choice.lower()):
+            by_part.setdefault(part, choice)
+    close = difflib.get_close_matches(value.lower(), list(by_part), n=1, cutoff=max(cutoff, 0.8))
+    return by_part[close[0]] if close else None
 
 
 def short(value: object, limit: int = 60) -> str:

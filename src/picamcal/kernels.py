@@ -14,7 +14,7 @@ Demosaicing is Malvar, He and Cutler (2004), its four 5x5 linear filters with th
 colour-demosaicing's implementation (``scipy.ndimage.convolve``'s default ``reflect``: the frame is
 mirrored about its edge, edge pixel repeated).
 
-The output is either the (H, W, 3) float32 image or its uint16 codes, planar (3, H, W),
+The output is either the (H, W, 3) float32 image or its uint16 codes, interleaved the same way,
 ``round(value * scale)`` clipped to 0..65535 with NaN as 0 (:func:`encode_codes`), written row by row
 without a float32 image at full resolution.
 
@@ -32,8 +32,10 @@ result to the last bit or nearly (compilers may still differ by an ulp):
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.util
+import threading
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -157,12 +159,12 @@ def numba_available() -> bool:
 def output_array(out: np.ndarray | None, height: int, width: int, dtype: DTypeLike = np.float32) -> np.ndarray:
     """``out`` if it can take the result (else OutputError), or a new array.
 
-    The result is the (H, W, 3) float32 image, or with ``dtype=np.uint16`` its planar codes (3, H, W).
+    The result is the (H, W, 3) float32 image, or with ``dtype=np.uint16`` its codes, interleaved the same way.
 
     Examples
     --------
-    >>> output_array(None, 4, 6).shape, output_array(None, 4, 6, np.uint16).shape
-    ((4, 6, 3), (3, 4, 6))
+    >>> output_array(None, 4, 6).shape, output_array(None, 4, 6, np.uint16).dtype
+    ((4, 6, 3), dtype('uint16'))
     """
     kind, shape = np.dtype(dtype), _output_shape(height, width, dtype)
     if out is None:
@@ -177,10 +179,8 @@ def output_array(out: np.ndarray | None, height: int, width: int, dtype: DTypeLi
 
 def _output_shape(height: int, width: int, dtype: DTypeLike) -> tuple[int, ...]:
     kind = np.dtype(dtype)
-    if kind == np.float32:
+    if kind in (np.float32, np.uint16):
         return (height, width, 3)
-    if kind == np.uint16:
-        return (3, height, width)
     raise ValueError(f"the corrected image is float32 or uint16 codes, not {kind}")
 
 
@@ -204,7 +204,7 @@ def fits(out: Any, height: int, width: int, dtype: DTypeLike = np.float32) -> bo
 
 
 def encode_codes(rgb: np.ndarray, scale: float, out: np.ndarray) -> np.ndarray:
-    """Linear RGB rows (rows, W, 3) to planar uint16 codes in ``out`` (3, rows, W): ``round(value * scale)``.
+    """Linear RGB rows (rows, W, 3) to uint16 codes in ``out`` (rows, W, 3): ``round(value * scale)``.
 
     Rounded half to even, clipped to 0..65535; NaN gives 0. Computed in the input's float type (float32 rows
     need no float64 copy) and in the numba kernel in float32: the same codes bit for bit when ``scale`` is a
@@ -212,7 +212,7 @@ def encode_codes(rgb: np.ndarray, scale: float, out: np.ndarray) -> np.ndarray:
 
     Examples
     --------
-    >>> encode_codes(np.array([[[1.0, np.nan, 2.5]]]), 32768, np.empty((3, 1, 1), np.uint16)).ravel()
+    >>> encode_codes(np.array([[[1.0, np.nan, 2.5]]]), 32768, np.empty((1, 1, 3), np.uint16)).ravel()
     array([32768,     0, 65535], dtype=uint16)
     """
     rgb = np.asarray(rgb)
@@ -220,7 +220,7 @@ def encode_codes(rgb: np.ndarray, scale: float, out: np.ndarray) -> np.ndarray:
     with np.errstate(over="ignore"):  # the largest floats overflow to infinity, which clips to 65535 all the same
         values *= values.dtype.type(scale)
     np.clip(values, 0, _CODE_MAX, out=values)
-    out[...] = np.moveaxis(np.rint(values, out=values), -1, 0)
+    out[...] = np.rint(values, out=values)
     return out
 
 
@@ -337,7 +337,7 @@ def correct_numpy(
 
     Returns
     -------
-    ndarray of float32, shape (H, W, 3), or of uint16, shape (3, H, W) with ``code_scale``
+    ndarray of float32 or, with ``code_scale``, uint16, shape (H, W, 3)
 
     Examples
     --------
@@ -352,7 +352,7 @@ def correct_numpy(
     ((240, 320, 3), 1.0)
     >>> codes = correct_numpy(raw.bayer, fields, code_scale=32768)
     >>> codes.shape, round(float(codes.mean()) / 32768, 2)  # the white at code 32768
-    ((3, 240, 320), 1.0)
+    ((240, 320, 3), 1.0)
     """
     height, width = bayer.shape
     out = output_array(out, height, width, np.float32 if code_scale is None else np.uint16)
@@ -365,7 +365,7 @@ def correct_numpy(
         if fields.matrices is not None:
             _unmix_block(rgb, y0, fields, fields.matrices)
         if code_scale is not None:
-            encode_codes(rgb, code_scale, out[:, y0:y1])
+            encode_codes(rgb, code_scale, out[y0:y1])
     return out
 
 
@@ -384,11 +384,20 @@ def correct_numpy(
 # - no fastmath: the uint16 codes test for NaN, and even "contract" alone (a multiply and an add in one
 #   rounding) moves the result of mode pure by over 1e-6 from numpy's, for no measurable gain.
 # Each thread works in its own 5-row ring of flat-fielded mosaic rows and a few planar rows, and
-# writes the output row last: interleaved float32, or the 3 planes of uint16 codes.
+# writes the output row last, interleaved: float32, or uint16 codes.
+
+
+_KERNEL_LOCK = threading.Lock()  # one dispatcher per process, also when a warm-up thread and a caller race
+
+
+def _numba_kernel():
+    """The parallel kernel's dispatcher, made once per process (:func:`_make_numba_kernel`)."""
+    with _KERNEL_LOCK:
+        return _make_numba_kernel()
 
 
 @functools.cache
-def _numba_kernel():
+def _make_numba_kernel():
     """Compile (or load from numba's cache) the parallel kernel; numba is imported here only.
 
     The helpers become module globals rather than closure variables of the kernel: numba keys its
@@ -396,7 +405,7 @@ def _numba_kernel():
     from one process to the next, so a kernel that closed over its helpers would never be reused.
     """
     global _nb_flat_row, _nb_demosaic_pairs, _nb_merge, _nb_demosaic_row, _nb_unmix_row, _nb_interleave_row
-    global _nb_codes_row
+    global _nb_code, _nb_codes_row
     import numba
 
     f05, f15, f2, f4, f5, f6, eighth = _F05, _F15, _F2, _F4, _F5, _F6, _EIGHTH
@@ -522,16 +531,21 @@ def _numba_kernel():
             out_row[3 * x + 1] = green[x]
             out_row[3 * x + 2] = blue[x]
 
-    @numba.njit(**options)
-    def _nb_codes_row(rgb, scale, codes, y):
+    @numba.njit(inline="always", error_model="numpy")
+    def _nb_code(value, scale):
         # As encode_codes: NaN and negatives fail "> 0" and give 0; rint rounds half to even, as numpy's.
-        for p in range(3):
-            src, dst = rgb[p], codes[p, y]
-            for x in range(src.shape[0]):
-                v = src[x] * scale
-                v = v if v > zero else zero
-                v = v if v < code_max else code_max
-                dst[x] = np.uint16(np.rint(v))
+        v = value * scale
+        v = v if v > zero else zero
+        v = v if v < code_max else code_max
+        return np.uint16(np.rint(v))
+
+    @numba.njit(**options)
+    def _nb_codes_row(rgb, scale, out_row):
+        red, green, blue = rgb[0], rgb[1], rgb[2]
+        for x in range(red.shape[0]):
+            out_row[3 * x] = _nb_code(red[x], scale)
+            out_row[3 * x + 1] = _nb_code(green[x], scale)
+            out_row[3 * x + 2] = _nb_code(blue[x], scale)
 
     @numba.njit(parallel=True, **options)
     def kernel(
@@ -590,11 +604,44 @@ def _numba_kernel():
                     _nb_unmix_row(y, matrices, miy, mwy, mfirst, mweights, mruns, matrix_along[t], planar, unmixed)
                     result = unmixed
                 if code_scale > 0:
-                    _nb_codes_row(result, code_scale, codes, y)
+                    _nb_codes_row(result, code_scale, codes[y])
                 else:
                     _nb_interleave_row(result, out[y])
 
     return kernel
+
+
+def warm_numba() -> threading.Thread | None:
+    """Start loading the numba kernel from numba's disk cache in a background thread; None without numba.
+
+    Loading costs a command a large part of its start (numba's own modules, its linear algebra's scipy, the
+    compiled code: about 0.5 s). Started before the calibration and the first file are read, it overlaps that
+    work; :func:`correct_numba` then finds the kernel ready, or waits for it. The thread corrects a tiny mosaic
+    through the kernel, with arguments of the types a real correction passes, so the very code a correction
+    runs is what gets loaded.
+
+    Examples
+    --------
+    >>> thread = warm_numba()
+    >>> thread is None or thread.join() is None
+    True
+    """
+    if not numba_available():
+        return None
+    thread = threading.Thread(target=_correct_tiny, name="picamcal-numba-warm-up", daemon=True)
+    thread.start()
+    return thread
+
+
+def _correct_tiny() -> None:
+    """Correct an 8 x 8 mosaic with :func:`correct_numba`: loads (or compiles) the kernel; ImportError is ignored
+    here (the real correction raises it, or falls back to numpy)."""
+    taps = make_taps(np.zeros(8, dtype=np.int64), np.full((8, 4), 0.25))
+    channels = np.array([0, 1, 1, 2], dtype=np.int64)
+    gains = np.ones(4, dtype=np.float32)
+    fields = CorrectionFields(np.zeros(4, dtype=np.float32), channels, gains, None, taps, None, taps, taps)
+    with contextlib.suppress(ImportError):
+        correct_numba(np.zeros((8, 8), dtype=np.uint16), fields)
 
 
 def correct_numba(
@@ -617,7 +664,7 @@ def correct_numba(
     bayer : ndarray of uint16, shape (H, W)
     fields : CorrectionFields
     out : ndarray, optional
-        float32 (H, W, 3), or uint16 (3, H, W) with ``code_scale``.
+        float32 (H, W, 3), or uint16 (H, W, 3) with ``code_scale``.
     block_rows : int
         Rows per parallel work item.
     code_scale : float, optional
@@ -626,7 +673,7 @@ def correct_numba(
 
     Returns
     -------
-    ndarray of float32, shape (H, W, 3), or of uint16, shape (3, H, W) with ``code_scale``
+    ndarray of float32 or, with ``code_scale``, uint16, shape (H, W, 3)
 
     Raises
     ------
@@ -657,9 +704,9 @@ def correct_numba(
     white = np.zeros((4, 4, 4), np.float32) if fields.white is None else fields.white
     matrices = np.zeros((9, 4, 4), np.float32) if fields.matrices is None else fields.matrices
     if code_scale is None:
-        floats, codes, scale = out.reshape(height, 3 * width), np.empty((3, 0, 0), np.uint16), 0.0
+        floats, codes, scale = out.reshape(height, 3 * width), np.empty((0, 0), np.uint16), 0.0
     else:
-        floats, codes, scale = np.empty((0, 0), np.float32), out, code_scale
+        floats, codes, scale = np.empty((0, 0), np.float32), out.reshape(height, 3 * width), code_scale
     # One block at a time to whichever thread is free: a core busy with other work then takes fewer blocks.
     with numba.parallel_chunksize(1):
         kernel(

@@ -27,13 +27,23 @@ and illuminator descriptions and the frame's metadata.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from ._json import Fields, read_json
 from .errors import PicamcalError
 
-__all__ = ["FRAME_FORMAT", "MANIFEST_FORMAT", "MANIFEST_NAME", "MANIFEST_VERSION", "AcquisitionError", "load_manifest"]
+__all__ = [
+    "FRAME_FORMAT",
+    "ILLUMINATOR_LIGHTS",
+    "MANIFEST_FORMAT",
+    "MANIFEST_NAME",
+    "MANIFEST_VERSION",
+    "AcquisitionError",
+    "load_manifest",
+    "manifest_light",
+]
 
 #: The manifest's file name in the run's folder.
 MANIFEST_NAME = "manifest.json"
@@ -44,6 +54,11 @@ FRAME_FORMAT = "picamcal-acquisition-frame"
 #: The ``version`` of both.
 MANIFEST_VERSION = 1
 _MAX_MANIFEST_BYTES = 16 << 20
+#: The light each kind of illuminator gives (the manifest's ``illuminator.kind`` -> a name of
+#: :data:`picamcal.calibration.LIGHTS`): the jig's LEDs, driven over a serial port, from a Pi's pin or simulated, or a
+#: screen (shown in a window or by the user, seen by a real or a simulated camera). A ``manual`` illuminator is
+#: whatever the user set by hand: its light is not known.
+ILLUMINATOR_LIGHTS = {"serial": "jig", "gpio": "jig", "sim": "jig", "screen": "screen"}
 
 
 class AcquisitionError(PicamcalError):
@@ -133,3 +148,14 @@ def _check_manifest(record: dict[str, Any], path: Path) -> None:
             fields.text(entry["sha256"], f"{where}.sha256")
         if "light" in entry:
             fields.numbers(entry["light"], f"{where}.light", 3, integer=True, minimum=0, maximum=255)
+
+
+def manifest_light(record: Mapping[str, Any]) -> str | None:
+    """The light of a run's references, from its illuminator (:data:`ILLUMINATOR_LIGHTS`), or None if not known.
+
+    Examples
+    --------
+    >>> manifest_light({"illuminator": {"kind": "gpio"}}), manifest_light({"illuminator": {"kind": "manual"}})
+    ('jig', None)
+    """
+    return ILLUMINATOR_LIGHTS.get(str((record.get("illuminator") or {}).get("kind")))

@@ -15,8 +15,9 @@ Each mode is a step further along the paper's correction (its Fig. 1 and equatio
     ``flat``, then ``Cx U``: unmixes to pure primaries (more saturated, and more noise).
 
 A ``flat`` calibration (white reference only) does ``uncorrected`` and ``flat``; ``centre`` and ``pure`` need the
-colour-unmixing field of a ``full`` one. ``balance``, the name of ``uncorrected`` before version 0.2, is still
-accepted with a warning.
+colour-unmixing field of a ``full`` one. Where no mode is given, a correction takes the best the calibration does
+(:func:`best_mode`): ``centre`` with an unmixing field, ``flat`` without. ``balance``, the name of ``uncorrected``
+before version 0.2, is still accepted with a warning.
 """
 
 from __future__ import annotations
@@ -96,3 +97,26 @@ def parse_mode(value: str | Mode) -> Mode:
         return Mode(value)
     except ValueError:
         raise ValueError(f"unknown mode {value!r}: choose one of {', '.join(MODE_NAMES)}") from None
+
+
+def best_mode(has_unmixing: bool) -> Mode:
+    """The mode a correction takes when none is given: the best a calibration does.
+
+    ``centre`` (the paper's recommended correction) for a calibration with a colour-unmixing field, ``flat``
+    for one without (a white reference alone): the most either can correct.
+
+    Examples
+    --------
+    >>> best_mode(has_unmixing=True), best_mode(has_unmixing=False)
+    (<Mode.CENTRE: 'centre'>, <Mode.FLAT: 'flat'>)
+    >>> best_mode_reason(False)
+    'the best this calibration does: it has no colour references, only a white'
+    """
+    return Mode.CENTRE if has_unmixing else Mode.FLAT
+
+
+def best_mode_reason(has_unmixing: bool) -> str:
+    """Why :func:`best_mode` chose its mode, in a few words for a summary line (see its example)."""
+    return "the best this calibration does: " + (
+        "it has colour unmixing" if has_unmixing else "it has no colour references, only a white"
+    )

@@ -2,25 +2,29 @@
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any, NoReturn
 
-from .errors import CalibrationInputError, PicamcalError
-from .manifest import MANIFEST_NAME, AcquisitionError, load_manifest
-from .raw import HEADLESS_SUFFIXES, RAW_SUFFIXES
+from .errors import CalibrationInputError, PicamcalError, closest
+from .manifest import MANIFEST_NAME, AcquisitionError, load_manifest, manifest_light
+from .raw import HEADLESS_SUFFIXES, RAW_SUFFIXES, RawImage
 
 __all__ = [
     "COLOURS",
     "COLOUR_NAME",
     "MAX_COLOUR_NAME",
     "ROLES",
+    "check_same_settings",
     "colour_name",
     "colour_role",
     "find_references",
     "parse_colours",
     "read_manifest",
+    "reference_light",
     "role_of",
 ]
 
@@ -68,14 +72,14 @@ def colour_name(role: str) -> str | None:
 def role_of(name: str) -> str | None:
     """The reference role a file name stands for, or None.
 
-    Names hold the role as a word (``white.dng``, ``run3_red.dng``, ``white_2.dng``) or, as in the paper's
-    code, the LED setting (``..._r255_g0_b0.dng`` is red, all equal and non-zero is white, all zero is black).
-    An extra colour reference is ``colour_<name>`` (``colour_cyan.dng``, ``colour_cyan_2.dng``,
+    Names hold the role as a word (``white.dng``, ``run3_red.dng``, ``white_2.dng``, ``white2.dng``) or, as in the
+    paper's code, the LED setting (``..._r255_g0_b0.dng`` is red, all equal and non-zero is white, all zero is
+    black). An extra colour reference is ``colour_<name>`` (``colour_cyan.dng``, ``colour_cyan_2.dng``,
     ``run3_colour_amber.dng``); a name that holds ``colour`` otherwise stands for no role.
 
     Examples
     --------
-    >>> role_of("capture_r0_g255_b0.dng"), role_of("White.DNG"), role_of("white_2.raw"), role_of("target.dng")
+    >>> role_of("capture_r0_g255_b0.dng"), role_of("White.DNG"), role_of("white2.raw"), role_of("target.dng")
     ('green', 'white', 'white', None)
     >>> role_of("colour_cyan_2.dng"), role_of("run3_Colour_LED-590.dng"), role_of("colour_white_x.dng")
     ('colour_cyan', 'colour_led-590', None)
@@ -94,13 +98,15 @@ def role_of(name: str) -> str | None:
     words = set(re.split(r"[^a-z0-9]+", stem))
     if "colour" in words:
         return None
-    found = [role for role in ROLES if role in words]
+    # A frame number may follow the role without a separator (white2, as a camera app counts its shots).
+    found = [role for role in ROLES if any(word.rstrip("0123456789") == role for word in words)]
     return found[0] if len(found) == 1 else None
 
 
-def _natural(path: Path) -> list:
-    """Sort key that orders ``white_2`` before ``white_10``."""
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name.lower())]
+def _natural(path: Path) -> tuple[list, str]:
+    """Sort key that orders ``white_2`` before ``white_10``, and ``white`` before ``white2`` (the stem first)."""
+    stem = [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.stem.lower())]
+    return stem, path.suffix.lower()
 
 
 def read_manifest(folder: str | os.PathLike[str], *, extras: bool = False) -> dict[str, Path]:
@@ -160,6 +166,24 @@ def read_manifest(folder: str | os.PathLike[str], *, extras: bool = False) -> di
     return files
 
 
+def _not_a_folder(path: Path) -> NoReturn:
+    """Raise the error for a path given as the folder of references that is none: a calibration, a file, nothing."""
+    if path.is_file():
+        from .calibration import is_calibration_file  # only here: a calibration is read only to be recognised
+
+        if is_calibration_file(path):  # by its content, as load_calibration reads it, whatever its name
+            raise CalibrationInputError(
+                f"{path} is a picamcal calibration, not a folder of reference images: give the folder of references "
+                "or --white (a jig calibration to combine with a white goes to --unmixing-from)"
+            )
+        raise CalibrationInputError(
+            "a file, not a folder of reference images: give its folder, or the file as --white (--red, --green, "
+            "--blue, --black)",
+            path,
+        )
+    raise CalibrationInputError("no such folder of reference images", path)
+
+
 def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, Path | list[Path]]:
     """Map each role to its file (or files) in a folder.
 
@@ -173,7 +197,9 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     Raises
     ------
     CalibrationInputError
-        The folder is missing or cannot be listed, has no white, or has some but not all of red, green and blue.
+        The folder is missing (a file given instead is named as such: a picamcal calibration, recognised by its
+        content, or another file) or cannot be listed, has no white, or has some but not all of red, green and
+        blue.
     AcquisitionError
         The folder holds a ``manifest.json`` that is not a usable one (:func:`read_manifest`).
 
@@ -195,7 +221,7 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     """
     folder = Path(folder)
     if not folder.is_dir():
-        raise CalibrationInputError("no such folder of reference images", folder)
+        _not_a_folder(folder)
     if not in_situ and (folder / MANIFEST_NAME).is_file():
         return dict(read_manifest(folder))
     try:
@@ -230,6 +256,94 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
             folder,
         )
     return {role: paths[0] if len(paths) == 1 else paths for role, paths in found.items()}
+
+
+def check_same_settings(frame: RawImage, first: RawImage, role: str) -> None:
+    """Raise unless ``frame`` was taken with the settings of ``first``, the first frame of the reference ``role``.
+
+    Several frames of one reference are averaged (:func:`picamcal.calibrate`), which is the mean of one scene only
+    when they share their settings: the same black level, and where both files record them, exposure times and
+    analogue gains within 1 % (the files' rounding of them).
+
+    Raises
+    ------
+    CalibrationInputError
+        Naming ``frame``'s file and the setting that differs.
+
+    Examples
+    --------
+    >>> from picamcal.raw import RawImage
+    >>> first = RawImage(np.zeros((4, 4), np.uint16), "RGGB", 64, 1023, 10, None, {"exposure_time_s": 0.01})
+    >>> check_same_settings(first, first, "white")
+    >>> later = RawImage(first.bayer, "RGGB", 64, 1023, 10, None, {"exposure_time_s": 0.02, "path": "white2.dng"})
+    >>> check_same_settings(later, first, "white")
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.CalibrationInputError: white2.dng: exposure time (s) 0.02 differs from the first white frame's \
+0.01: frames of one reference are averaged, so they must come from the same settings
+    """
+    levels = [list(raw.black_level) for raw in (frame, first)]
+    same = all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(*levels, strict=True))  # NaN: unknown
+    differences = [] if same else [("black level", *map(str, levels))]
+    for key, what in (("exposure_time_s", "exposure time (s)"), ("analogue_gain", "analogue gain")):
+        pair: list[Any] = [raw.metadata.get(key) for raw in (frame, first)]
+        if all(isinstance(v, (int, float)) and v > 0 for v in pair) and not math.isclose(*pair, rel_tol=0.01):
+            differences.append((what, f"{pair[0]:g}", f"{pair[1]:g}"))
+    if differences:
+        what, value, wanted = differences[0]
+        raise CalibrationInputError(
+            f"{what} {value} differs from the first {role} frame's {wanted}: frames of one reference are averaged, so "
+            "they must come from the same settings",
+            frame.source,
+        )
+
+
+def reference_light(folder: str | os.PathLike[str] | None, light: str | None = None) -> str | None:
+    """The light a calibration's references were taken under (:data:`picamcal.calibration.LIGHTS`), or None.
+
+    ``light`` when given; else, for the folder of an acquisition (``picamcal acquire``), the light of the illuminator
+    its manifest names (:func:`picamcal.manifest.manifest_light`); else None: not known.
+
+    Raises
+    ------
+    CalibrationInputError
+        ``light`` is not one of the lights (with "did you mean"), or another than the acquisition's.
+    AcquisitionError
+        The folder holds a ``manifest.json`` that is not a usable one (:func:`picamcal.manifest.load_manifest`).
+
+    Examples
+    --------
+    >>> from picamcal.acquire.acquisition import acquire
+    >>> from picamcal.acquire.cameras import SimCamera
+    >>> camera = SimCamera("imx219", size=(64, 48))
+    >>> _ = acquire(camera, camera.light, "run1", settle_s=0)
+    >>> reference_light("run1"), reference_light(None, "Screen"), reference_light(None)
+    ('jig', 'screen', None)
+    """
+    from .calibration import LIGHTS  # the calibration's schema, read only when a light is asked for
+
+    given = None
+    if light is not None:
+        given = light.lower() if isinstance(light, str) else ""
+        if given not in LIGHTS:
+            near = closest(str(light), LIGHTS)
+            raise CalibrationInputError(
+                f"unknown light {str(light)[:40]!r} (expected {', '.join(LIGHTS)})"
+                + (f"; did you mean {near}?" if near else "")
+            )
+    manifest = None if folder is None else Path(folder) / MANIFEST_NAME
+    if manifest is None or not manifest.is_file():
+        return given
+    record = load_manifest(manifest.parent)
+    recorded = manifest_light(record)
+    if given is not None and recorded is not None and given != recorded:
+        kind = record["illuminator"]["kind"]
+        raise CalibrationInputError(
+            f"the acquisition's illuminator was {kind}, which gives {LIGHTS[recorded]} ({recorded}), not {given}: "
+            "leave the light out, it is read from this manifest",
+            manifest,
+        )
+    return given or recorded
 
 
 #: The longest name of an extra colour, in characters: it names files.

@@ -7,9 +7,11 @@ take it from the file.
 
 from __future__ import annotations
 
+import re
+import warnings
 from dataclasses import dataclass
 
-from .errors import PicamcalError, closest
+from .errors import PicamcalError, PicamcalWarning, closest
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,9 @@ class Sensor:
         What the legacy firmware's raw block starts with: ``BRCM``, ``BRCMo`` on the HQ camera.
     legacy_aliases : tuple of str
         Other EXIF ``Model`` texts of early legacy firmware that mean this sensor without naming it.
+    binned_modes : tuple of (int, int)
+        (width, height) of the driver's binned modes of the whole pixel array (2 x 2 and more; not the cropped
+        ones), by which a frame that does not name its sensor can be told (:func:`sensors_of_size`).
     """
 
     name: str
@@ -81,6 +86,7 @@ class Sensor:
     monochrome: bool = False
     legacy_ident: str = "BRCM"
     legacy_aliases: tuple[str, ...] = ()
+    binned_modes: tuple[tuple[int, int], ...] = ()
 
     @property
     def white_level(self) -> int:
@@ -99,8 +105,9 @@ LSC_GRIDS: dict[str, tuple[int, int]] = {"bcm2835": (16, 12), "pisp": (32, 32)}
 SENSORS: dict[str, Sensor] = {
     s.name: s
     for s in (
-        # ov5647.json 1024 (16 at 10 bits); ov5647.c 2592x1944 10-bit; unitCellSize 1400. The Bayer orders of the
-        # first four entries are the simulator's defaults since the registry's first version; files carry their own.
+        # ov5647.json 1024 (16 at 10 bits); ov5647.c 2592x1944 10-bit, ov5647_modes' 2x2 binned 1296x972 of the whole
+        # array; unitCellSize 1400. The Bayer orders of the first four entries are the simulator's defaults since the
+        # registry's first version; files carry their own.
         Sensor(
             "ov5647",
             "Camera Module v1",
@@ -119,8 +126,10 @@ SENSORS: dict[str, Sensor] = {
                 LegacyMode((6, 7), 640, 480, 10, 445440),
             ),
             legacy_aliases=("testc",),  # early firmware's RP_testc (LibRaw does not take it)
+            binned_modes=((1296, 972),),
         ),
-        # imx219.json 4096 (64 at 10 bits); imx219.c 3280x2464 10-bit; unitCellSize 1120.
+        # imx219.json 4096 (64 at 10 bits); imx219.c 3280x2464 10-bit, supported_modes' "2x2 binned" 1640x1232;
+        # unitCellSize 1120.
         Sensor(
             "imx219",
             "Camera Module v2",
@@ -139,8 +148,9 @@ SENSORS: dict[str, Sensor] = {
                 LegacyMode((6,), 1280, 720, 10, 1233920),
                 LegacyMode((7,), 640, 480, 10, 445440),
             ),
+            binned_modes=((1640, 1232),),
         ),
-        # imx477.json 4096 (256 at 12 bits); imx477.c 4056x3040 SRGGB12; unitCellSize 1550.
+        # imx477.json 4096 (256 at 12 bits); imx477.c 4056x3040 SRGGB12, "2x2 binned" 2028x1520; unitCellSize 1550.
         Sensor(
             "imx477",
             "HQ Camera",
@@ -158,10 +168,12 @@ SENSORS: dict[str, Sensor] = {
                 LegacyMode((), 1012, 760, 10, 1015808),
             ),
             legacy_ident="BRCMo",
+            binned_modes=((2028, 1520),),
         ),
         # The Camera Module 3 has no legacy raw format (libcamera only).
-        # imx708.json 4096 (64 at 10 bits); imx708.c 4608x2592 SRGGB10; unitCellSize 1400.
-        Sensor("imx708", "Camera Module 3", 4608, 2592, 10, 64, 1.4, "RGGB"),
+        # imx708.json 4096 (64 at 10 bits); imx708.c 4608x2592 SRGGB10, supported_modes_10bit_no_hdr's "regular 2x2
+        # binned" 2304x1296; unitCellSize 1400.
+        Sensor("imx708", "Camera Module 3", 4608, 2592, 10, 64, 1.4, "RGGB", binned_modes=((2304, 1296),)),
         # imx296.json 3840 (60 at 10 bits); imx296.c IMX296_PIXEL_ARRAY 1456x1088, SBGGR10_1X10 (Y10 when mono);
         # unitCellSize 3450.
         Sensor("imx296", "Global Shutter Camera", 1456, 1088, 10, 60, 3.45, "BGGR"),
@@ -174,16 +186,33 @@ SENSORS: dict[str, Sensor] = {
         # se327m12.json 3840 (240 at 12 bits); an IMX327 module, driven by imx290.c (1920x1080, SRGGB12);
         # unitCellSize 2900 (imx327).
         Sensor("se327m12", "SE327M12 module (IMX327)", 1920, 1080, 12, 240, 2.9, "RGGB"),
-        # imx378.json 4096 (256 at 12 bits); driven by imx477.c (4056x3040, SRGGB12); 1.55 um (Sony IMX378).
-        Sensor("imx378", "IMX378 modules (third party)", 4056, 3040, 12, 256, 1.55, "RGGB"),
-        # imx519.json 4096 (64 at 10 bits); imx519.c IMX519_PIXEL_ARRAY 4656x3496, SRGGB10 unflipped;
-        # unitCellSize 1220.
-        Sensor("imx519", "Arducam 16MP (IMX519)", 4656, 3496, 10, 64, 1.22, "RGGB"),
-        # imx500.json 4096 (64 at 10 bits); imx500.c 4056x3040 SRGGB10; 1.55 um (Sony IMX500).
-        Sensor("imx500", "AI Camera", 4056, 3040, 10, 64, 1.55, "RGGB"),
-        # imx283.json 3200 (200 at 12 bits); imx283.c IMX283_PIXEL_ARRAY 5472x3648, SRGGB12 first;
-        # unitCellSize 2400.
-        Sensor("imx283", "IMX283 modules (third party)", 5472, 3648, 12, 200, 2.4, "RGGB"),
+        # imx327.json (vc4 only) 3840 (240 at 12 bits); driven by imx290.c (model IMX327LQR, "sony,imx327lqr":
+        # 1920x1080, SRGGB12); unitCellSize 2900.
+        Sensor("imx327", "IMX327 modules (third party)", 1920, 1080, 12, 240, 2.9, "RGGB"),
+        # imx378.json 4096 (256 at 12 bits); driven by imx477.c (4056x3040, SRGGB12, 2x2 binned 2028x1520); 1.55 um
+        # (Sony IMX378).
+        Sensor(
+            "imx378", "IMX378 modules (third party)", 4056, 3040, 12, 256, 1.55, "RGGB", binned_modes=((2028, 1520),)
+        ),
+        # imx519.json 4096 (64 at 10 bits); imx519.c IMX519_PIXEL_ARRAY 4656x3496, SRGGB10 unflipped, 2328x1748
+        # binned from the whole array; unitCellSize 1220.
+        Sensor("imx519", "Arducam 16MP (IMX519)", 4656, 3496, 10, 64, 1.22, "RGGB", binned_modes=((2328, 1748),)),
+        # imx500.json 4096 (64 at 10 bits); imx500.c 4056x3040 SRGGB10, imx500_supported_modes' "2x2 binned"
+        # 2028x1520; 1.55 um (Sony IMX500).
+        Sensor("imx500", "AI Camera", 4056, 3040, 10, 64, 1.55, "RGGB", binned_modes=((2028, 1520),)),
+        # imx283.json 3200 (200 at 12 bits); imx283.c IMX283_PIXEL_ARRAY 5472x3648, SRGGB12 first, readout modes 2
+        # ("2/2 binned", 2736x1824) and 3 ("3/3 binned", 1824x1216); unitCellSize 2400.
+        Sensor(
+            "imx283",
+            "IMX283 modules (third party)",
+            5472,
+            3648,
+            12,
+            200,
+            2.4,
+            "RGGB",
+            binned_modes=((2736, 1824), (1824, 1216)),
+        ),
         # imx415.json 3840 (60 at 10 bits); imx415.c IMX415_PIXEL_ARRAY 3864x2192, SGBRG10; unitCellSize 1450.
         Sensor("imx415", "IMX415 modules (third party)", 3864, 2192, 10, 60, 1.45, "GBRG"),
         # imx335.json 3200 (200 at 12 bits); imx335.c IMX335_PIXEL_ARRAY 2592x1944, SRGGB12; unitCellSize 2000.
@@ -195,13 +224,26 @@ SENSORS: dict[str, Sensor] = {
         # imx662.json black_level_func 3200 at gain 1 (200 at 12 bits; it rises with gain); imx662.c
         # IMX662_PIXEL_ARRAY 1920x1080, SRGGB12; 2.9 um (Sony IMX662).
         Sensor("imx662", "IMX662 modules (third party)", 1920, 1080, 12, 200, 2.9, "RGGB"),
-        # ov64a40.json 4096 (64 at 10 bits); ov64a40.c OV64A40_PIXEL_ARRAY 9248x6944, SBGGR10 unflipped;
-        # unitCellSize 1008.
-        Sensor("ov64a40", "Arducam 64MP (OV64A40)", 9248, 6944, 10, 64, 1.008, "BGGR"),
+        # ov64a40.json 4096 (64 at 10 bits); ov64a40.c OV64A40_PIXEL_ARRAY 9248x6944, SBGGR10 unflipped, "2x2
+        # downscaled" 4624x3472 of the whole array; unitCellSize 1008.
+        Sensor("ov64a40", "Arducam 64MP (OV64A40)", 9248, 6944, 10, 64, 1.008, "BGGR", binned_modes=((4624, 3472),)),
         # ov9281_mono.json 4096 (64 at 10 bits); ov9282.c 1280x800 Y10; unitCellSize 3000.
         Sensor("ov9281", "OV9281 global shutter modules", 1280, 800, 10, 64, 3.0, None, monochrome=True),
         # ov7251_mono.json 4096 (64 at 10 bits); ov7251.c 640x480 Y10; unitCellSize 3000.
         Sensor("ov7251", "OV7251 global shutter modules", 640, 480, 10, 64, 3.0, None, monochrome=True),
+        # vd55g1.json 4096 (64 at 10 bits) is for the colour variant: vd55g1.c drives the VD55G1 (mono) and the VD65G4
+        # (RGB), whose media bus codes are Bayer (vd55g1_mbus_formats_bayer, SRGGB10 unflipped); VD55G1_WIDTH x
+        # VD55G1_HEIGHT 804x704, 8 or 10 bits; libcamera's pipeline adds "_mono" to a monochrome sensor's model to
+        # name its tuning file (pipeline_base.cpp); unitCellSize 2160.
+        Sensor("vd55g1", "VD55G1 family modules (colour: VD65G4)", 804, 704, 10, 64, 2.16, "RGGB"),
+        # vd55g1_mono.json 4096: the VD55G1 itself, monochrome (Y8, Y10).
+        Sensor("vd55g1_mono", "VD55G1 monochrome modules", 804, 704, 10, 64, 2.16, None, monochrome=True),
+        # vd56g3.json 4096 (64 at 10 bits) is for the colour variant: vd56g3.c drives the VD56G3 (mono) and the VD66GY
+        # (Bayer RGB: VD56G3_OPTICAL_REVISION_BAYER), SGRBG10 unflipped; VD56G3_NATIVE_WIDTH x _HEIGHT 1124x1364 (a
+        # portrait sensor), 8 or 10 bits; unitCellSize 2610.
+        Sensor("vd56g3", "VD56G3 family modules (colour: VD66GY)", 1124, 1364, 10, 64, 2.61, "GRBG"),
+        # vd56g3_mono.json 4096: the VD56G3 itself, monochrome (Y8, Y10).
+        Sensor("vd56g3_mono", "VD56G3 monochrome modules", 1124, 1364, 10, 64, 2.61, None, monochrome=True),
     )
 }
 
@@ -233,7 +275,9 @@ def get_sensor(name: str) -> Sensor:
     try:
         return SENSORS[name.lower()]
     except KeyError:
-        near = closest(name, SENSORS)
+        key = _key(name) if isinstance(name, str) else ""
+        slips = [known for known in SENSORS if _slip(key, _key(known))]
+        near = or_list(slips) if slips else closest(name, SENSORS)
         hint = f"; did you mean {near}?" if near else ""
         raise PicamcalError(f"unknown sensor {name!r} (known: {', '.join(SENSORS)}){hint}") from None
 
@@ -260,3 +304,114 @@ def find_sensor_name(text: str | None) -> str | None:
 
 
 _BY_LENGTH = sorted(SENSORS, key=len, reverse=True)
+
+
+def sensors_of_size(width: int, height: int) -> tuple[str, ...]:
+    """The colour sensors of the registry whose frames have this size: their full-resolution mode, or a binned mode
+    of the whole array (:attr:`Sensor.binned_modes`), in registry order.
+
+    One name identifies a frame that does not name its sensor (picamera2's DNGs, headless dumps); several are the
+    sensors it could be. A monochrome variant is never among them: it shares its colour sensor's sizes, and
+    picamcal calibrates colour sensors only.
+
+    Examples
+    --------
+    >>> sensors_of_size(3280, 2464), sensors_of_size(1456, 1088)
+    (('imx219',), ('imx296',))
+    >>> sensors_of_size(4056, 3040), sensors_of_size(320, 240)
+    (('imx477', 'imx378', 'imx500'), ())
+    """
+    return tuple(
+        s.name
+        for s in SENSORS.values()
+        if not s.monochrome and ((s.width, s.height) == (width, height) or (width, height) in s.binned_modes)
+    )
+
+
+def or_list(names: tuple[str, ...] | list[str]) -> str:
+    """Names for a message: ``a``, ``a or b``, ``a, b or c``.
+
+    Examples
+    --------
+    >>> or_list(["imx477", "imx378", "imx500"])
+    'imx477, imx378 or imx500'
+    """
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
+
+
+def given_sensor(value: object, *, warn: bool = True) -> str:
+    """A sensor the user names (``--sensor``, ``sensor=``): the registry's name for it, or the name of a sensor
+    outside the registry.
+
+    Case, separators and a variant's suffix are forgiven (``IMX-219`` and ``imx708_wide_noir`` are registry
+    sensors). A near miss of a registry name (one character left out, added, swapped or mistyped, as ``imx2l9``) is
+    refused with "did you mean"; a digit for a digit is another sensor's model number (``imx298`` is not the
+    ``imx290``). Any other name is a sensor picamcal knows nothing of: it is kept (lower case), with a
+    ``PicamcalWarning`` unless ``warn`` is false.
+
+    Raises
+    ------
+    PicamcalError
+        Not a name, or a near miss of a registry name.
+
+    Examples
+    --------
+    >>> given_sensor("IMX-219"), given_sensor("imx708_wide")
+    ('imx219', 'imx708')
+    >>> given_sensor("imx298", warn=False)
+    'imx298'
+    >>> given_sensor("imx2l9")
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: unknown sensor 'imx2l9'; did you mean imx219?
+    """
+    if not isinstance(value, str) or not _key(value):
+        raise PicamcalError(f"the sensor is a name such as 'imx219', not {value!r:.40}")
+    text = " ".join(value.lower().split())
+    exact = [name for name in SENSORS if _key(text) == _key(name)]
+    if exact:
+        return exact[0]
+    slips = [name for name in SENSORS if _slip(_key(text), _key(name))]
+    if slips:  # before the variants: imx296_mon is the imx296_mono mistyped, not a variant of the imx296
+        raise PicamcalError(f"unknown sensor {value.strip()!r}; did you mean {or_list(slips)}?")
+    for name in _BY_LENGTH:  # the longest first: imx296_mono_16mm is the imx296_mono
+        if re.search(rf"(?:^|[^a-z0-9]){re.escape(name)}(?![0-9])", text):
+            return name
+    if warn:
+        others = [name for name in SENSORS if _other_digit(_key(text), _key(name))]
+        hint = f"; if it is the {or_list(others)}, give that name" if others else ""
+        warnings.warn(
+            f"sensor {text!r} is not in picamcal's registry: picamcal knows nothing of it (no black level, no stock "
+            f"tuning file: exports need --base){hint}",
+            PicamcalWarning,
+            stacklevel=2,
+        )
+    return text
+
+
+def _key(text: str) -> str:
+    """A name's letters and digits, lower case: what tells two names apart."""
+    return re.sub(r"[^a-z0-9]", "", text.lower())
+
+
+def _slip(typed: str, name: str) -> bool:
+    """Whether ``typed`` is ``name`` with one slip of the keys: a character left out, added, swapped with its
+    neighbour, or replaced, but not a digit by a digit (that is another model number)."""
+    if len(typed) == len(name):
+        diff = [i for i, (a, b) in enumerate(zip(typed, name, strict=True)) if a != b]
+        if len(diff) == 1:
+            return not _other_digit(typed, name)
+        if len(diff) != 2 or diff[1] != diff[0] + 1:
+            return False
+        i, j = diff
+        return typed[i] == name[j] and typed[j] == name[i]
+    longer, shorter = (typed, name) if len(typed) > len(name) else (name, typed)
+    return len(longer) == len(shorter) + 1 and any(longer[:i] + longer[i + 1 :] == shorter for i in range(len(longer)))
+
+
+def _other_digit(typed: str, name: str) -> bool:
+    """Whether ``typed`` is ``name`` with one digit replaced by another: the model number of another sensor."""
+    if len(typed) != len(name):
+        return False
+    diff = [(a, b) for a, b in zip(typed, name, strict=True) if a != b]
+    return len(diff) == 1 and diff[0][0].isdigit() and diff[0][1].isdigit()

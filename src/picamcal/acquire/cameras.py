@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..errors import PicamcalError
-from ..export.tuning import neutral_tuning
+from ..export.tuning import load_tuning, neutral_tuning, stock_tuning_path
 from ..raw.model import RawImage
 from ..raw.picamera2 import capture_raw
 from ..references import ROLES
@@ -348,6 +348,9 @@ class Picamera2Camera:
                 stock = module.Picamera2.load_tuning_file(f"{self.model}.json")
             except RuntimeError as exc:
                 raise CameraError(f"no stock libcamera tuning file for the {self.model} ({exc})") from exc
+            except ValueError:  # picamera2 reads it with json, which refuses what libcamera's parser takes (a ",}")
+                target = "bcm2835" if "VC4" in str(getattr(module.Picamera2, "platform", "")).upper() else "pisp"
+                stock = load_tuning(stock_tuning_path(self.model, target))
             tuning = neutral_tuning(stock)
         try:
             self._picam2 = module.Picamera2(camera_num, tuning=tuning)

@@ -11,7 +11,9 @@ The checks follow the paper:
   The lenslet shift grows linearly with radius, ``s(r) = r tan(CRA_corner) / r_corner`` in units of the
   stack height, so a tilt ``theta`` moves the spot-on-photodiode point, and with it the vignetting
   centre, by ``d = r_corner tan(theta) / tan(CRA_corner)``; inverted per axis,
-  ``theta = atan(d tan(CRA_corner) / r_corner)``.
+  ``theta = atan(d tan(CRA_corner) / r_corner)``. That is the jig's reading (a bare sensor under light meant to
+  be normally incident); for a white taken through the optics (white alone, or in situ) the centre is where their
+  axis meets the sensor, reported as such (:data:`OPTICS_KINDS`).
 * ``dust``: "any high-frequency components in these matrices probably indicate dirt in the optical
   system" (section "Colour crosstalk"); dust on the white reference darkens small patches that the flat
   field would then imprint on every corrected image.
@@ -63,8 +65,10 @@ from .fields import (
     roughness,
     vignetting_centre,
 )
+from .verdicts import workflow_kind
 
 __all__ = [
+    "OPTICS_KINDS",
     "UNMIXING_CHECKS",
     "Check",
     "check_conditioning",
@@ -86,6 +90,9 @@ __all__ = [
 Verdict = Literal["pass", "warn"]
 #: The checks about the colour-unmixing field, which a flat-field calibration (white only) does not have.
 UNMIXING_CHECKS = ("conditioning", "noise_penalty", "unmixing_smoothness")
+#: The calibrations (:func:`picamcal.analysis.verdicts.workflow_kind`) whose white was taken through the optics, so
+#: that the vignetting centre is the optics' axis rather than the light's angle on the jig.
+OPTICS_KINDS = ("flat", "in-situ")
 
 #: Vignetting centre offset (% of the half-diagonal) above which the check warns. With a CRA of about 27
 #: degrees at the corner (tan = 0.5, the simulated IMX219) it is a tilt of 0.57 degrees, and moving the
@@ -208,21 +215,33 @@ def check_vignetting_centre(
     cra_corner_deg: float | None = None,
     max_offset_percent: float = WARN_CENTRE_OFFSET_PERCENT,
 ) -> Check:
-    """Where the green flat field peaks, against the sensor centre; with the CRA, the sensor tilt.
+    """Where the green flat field peaks, against the sensor centre: for the jig a tilt, through optics their axis.
 
-    Warns when the offset exceeds ``max_offset_percent`` of the half-diagonal: the light was not normally
-    incident (a tilted sensor or jig, or off-axis optics), and the calibration then holds for that angle
-    only. ``shift_error_percent`` is how much the flat field at the worst bin would be wrong if the
-    vignetting sat at the sensor centre instead (the fitted surface moved there).
+    What the offset means depends on how the calibration was made (:func:`picamcal.analysis.verdicts.workflow_kind`):
+
+    - references on the jig (``full``, ``least-squares``): the bare sensor under light meant to be normally
+      incident, so an offset above ``max_offset_percent`` of the half-diagonal warns that the light was not (a
+      tilted sensor or jig), and the calibration then holds for that angle only; with ``cra_corner_deg`` the tilt
+      it implies is given.
+    - a white through the optics (``flat``: a white alone; ``in-situ``): the vignetting is the optics' own, and its
+      centre is where their axis meets the sensor. An offset is reported as that (``values["meaning"]`` is
+      ``"optical axis"``) and passes: the flat field corrects it as it is, for as long as the optics and camera
+      stay as they were. No tilt is given.
+
+    ``shift_error_percent`` is how much the flat field at the worst bin would be wrong if the vignetting sat at the
+    sensor centre instead (the fitted surface moved there).
 
     Examples
     --------
     >>> from picamcal.simulate import make_camera, simulate_references
     >>> camera = make_camera("imx219", size=(640, 480), tilt=(2.0, 0.0))  # light 2 degrees off normal in x
-    >>> cal = picamcal.calibrate(**simulate_references(camera, seed=1))
-    >>> check = check_vignetting_centre(cal, cra_corner_deg=26.6)
+    >>> refs = simulate_references(camera, seed=1)
+    >>> check = check_vignetting_centre(picamcal.calibrate(**refs), cra_corner_deg=26.6)
     >>> check.verdict, round(check.values["tilt_x_deg"], 1), round(check.values["tilt_y_deg"], 1)
     ('warn', 2.0, 0.0)
+    >>> through_optics = check_vignetting_centre(picamcal.calibrate(refs["white"]))  # the same white alone
+    >>> through_optics.verdict, through_optics.values["meaning"], round(through_optics.values["offset_x_px"])
+    ('pass', 'optical axis', 28)
     """
     y, x = calibration.bin_centres
     plane, y, x = _as_plane(calibration.white[..., 1], y, x)
@@ -255,6 +274,10 @@ def check_vignetting_centre(
         "tilt_x_deg": None,
         "tilt_y_deg": None,
     }
+    if workflow_kind(calibration) in OPTICS_KINDS:
+        values["meaning"] = "optical axis"
+        return Check("vignetting_centre", "pass", _optical_axis(calibration, values), values)
+    values["meaning"] = "tilt"
     where = f"vignetting centre at ({centre[0]:.0f}, {centre[1]:.0f}) px, {offset:.0f} px ({percent:.1f} % of the "
     where += "half-diagonal) from the sensor centre"
     if cra_corner_deg is not None:
@@ -269,6 +292,22 @@ def check_vignetting_centre(
         )
         return Check("vignetting_centre", "warn", summary, values)
     return Check("vignetting_centre", "pass", where, values)
+
+
+def _optical_axis(calibration: Calibration, values: dict[str, Any]) -> str:
+    """The vignetting centre of a white taken through the optics, said as where their axis meets the sensor."""
+    dx, dy = values["offset_x_px"], values["offset_y_px"]
+    where = (
+        f"vignetting centre at ({values['x_px']:.0f}, {values['y_px']:.0f}) px: the optical axis meets the sensor "
+        f"{dx:+.0f} px ({100 * dx / calibration.width:+.1f} % of the width) in x and {dy:+.0f} px "
+        f"({100 * dy / calibration.height:+.1f} % of the height) in y from its centre"
+    )
+    if values["offset_percent"] <= values["max_offset_percent"]:
+        return f"{where}: centred"
+    return (
+        f"{where}, a property of the optics (their alignment on the camera), which the flat field corrects as it "
+        "is while they stay as they were calibrated"
+    )
 
 
 # Dust -------------------------------------------------------------------------------------------------
@@ -286,7 +325,7 @@ def check_dust(calibration: Calibration) -> Check:
     >>> from picamcal.simulate import make_camera, simulate_references
     >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(640, 480)), seed=1, dust=2))
     >>> [(round(s["x"]), round(s["y"])) for s in check_dust(cal).values["specks"]]
-    [(511, 369), (178, 207)]
+    [(510, 369), (178, 207)]
     """
     y, x = calibration.bin_centres
     if min(y.size, x.size) < 5:

@@ -8,6 +8,7 @@ local process pool or on a dask cluster, so the outputs are the same bytes eithe
 
 The modules: :mod:`~picamcal.batch.options` (the options, checked once), :mod:`~picamcal.batch.inputs`
 (files, folders and patterns), :mod:`~picamcal.batch.disk` (the output place and its room),
+:mod:`~picamcal.batch.stopping` (SIGINT and SIGTERM),
 :mod:`~picamcal.batch.worker` (the task and what a worker keeps), :mod:`~picamcal.batch.pipeline` (a
 worker's reading, correcting and writing overlapped), :mod:`~picamcal.batch.executors` (this process, a pool,
 dask) and :mod:`~picamcal.batch.run` (:func:`run_batch` itself).
@@ -30,6 +31,11 @@ What it guarantees:
   forkserver and multiprocessing's resource tracker, which wait for them, end too.
 - **Resumable.** Existing outputs are skipped unless ``overwrite``; the zarr stack records its finished
   frames in its attributes. Running the same command again finishes an interrupted batch.
+- **Stopped cleanly.** On SIGINT (Ctrl-C) or SIGTERM no new file is started, the files in flight are finished
+  or dropped within about a second, their temporaries are removed, and :class:`BatchInterrupted` says how many
+  were written (:mod:`~picamcal.batch.stopping`).
+- **Outputs beside the inputs.** The output folder may lie inside a folder of inputs when it is new or
+  picamcal's own; folder scans and patterns never take its files as inputs.
 - **A bad file does not stop the others,** whichever it is, the first included: a corrupt file, or one of
   another size or sensor than the calibration's. Its reason is in :attr:`BatchResult.failed`. Problems with
   the whole batch (the options, the calibration, the output folder, the scheduler) raise a
@@ -53,11 +59,12 @@ from __future__ import annotations
 from ..output.ome_zarr import OME_NGFF_VERSION
 from .inputs import expand_inputs
 from .options import COMPRESSIONS, BatchOptionError, BatchOptions
-from .run import BatchResult, run_batch
+from .run import BatchInterrupted, BatchResult, run_batch
 
 __all__ = [
     "COMPRESSIONS",
     "OME_NGFF_VERSION",
+    "BatchInterrupted",
     "BatchOptionError",
     "BatchOptions",
     "BatchResult",

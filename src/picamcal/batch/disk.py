@@ -13,8 +13,14 @@ from ..errors import OutputError
 PLACE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
 
 
-def prepare_folder(out_dir: Path, frame_bytes: int) -> None:
+def prepare_folder(out_dir: Path, frame_bytes: int) -> list[Path]:
     """Create the output folder, remove the temporaries killed runs left, and check it takes one output.
+
+    Returns
+    -------
+    list of Path
+        The folders this call created (``out_dir`` and any missing parents, outermost first), for
+        :func:`remove_empty_folders` when the batch writes nothing.
 
     Raises
     ------
@@ -23,18 +29,65 @@ def prepare_folder(out_dir: Path, frame_bytes: int) -> None:
 
     Examples
     --------
-    >>> prepare_folder(Path("corrected"), 230_400)
-    >>> sorted(Path("corrected").iterdir())  # the probe is removed again
+    >>> prepare_folder(Path("scans/corrected"), 230_400)
+    [PosixPath('scans'), PosixPath('scans/corrected')]
+    >>> sorted(Path("scans/corrected").iterdir())  # the probe is removed again
     []
     """
+    missing = missing_folders(out_dir)
+    created: list[Path] = []
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise OutputError("exists and is not a folder", out_dir) from None
-    except OSError as exc:
-        raise OutputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from exc
-    remove_stale_temporaries(out_dir)
-    probe(out_dir, frame_bytes)
+        try:
+            for folder in missing:
+                try:
+                    folder.mkdir()
+                    created.append(folder)
+                except FileExistsError:  # another run made it meanwhile: not ours to remove
+                    if not folder.is_dir():
+                        raise
+            out_dir.mkdir(exist_ok=True)
+        except FileExistsError:
+            raise OutputError("exists and is not a folder", out_dir) from None
+        except OSError as exc:
+            raise OutputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from exc
+        remove_stale_temporaries(out_dir)
+        probe(out_dir, frame_bytes)
+    except BaseException:  # refused, or interrupted: leave no folder this call made
+        remove_empty_folders(created)
+        raise
+    return created
+
+
+def missing_folders(path: Path) -> list[Path]:
+    """``path`` and its parents that do not exist (yet), outermost first: what making ``path`` would create.
+
+    Examples
+    --------
+    >>> missing_folders(Path("new/stack.zarr"))
+    [PosixPath('new'), PosixPath('new/stack.zarr')]
+    """
+    return [folder for folder in (path, *path.parents) if not os.path.lexists(folder)][::-1]
+
+
+def remove_empty_folders(created: list[Path]) -> None:
+    """Remove the folders a batch created (outermost first, as :func:`prepare_folder` returns them) that are
+    still empty, innermost first: a batch that wrote nothing leaves no empty output folder behind. A folder that
+    holds anything (another run's outputs among them) is kept.
+
+    Examples
+    --------
+    >>> made = prepare_folder(Path("out/a"), 1000)
+    >>> remove_empty_folders(made)
+    >>> Path("out").exists()
+    False
+    """
+    for folder in reversed(created):
+        try:
+            folder.rmdir()
+        except FileNotFoundError:  # gone already
+            continue
+        except OSError:  # not empty: keep it, and its parents with it
+            return
 
 
 def probe(folder: Path, nbytes: int) -> None:
@@ -72,4 +125,4 @@ def probe(folder: Path, nbytes: int) -> None:
         os.unlink(name)
 
 
-__all__ = ["PLACE_ERRORS", "prepare_folder", "probe"]
+__all__ = ["PLACE_ERRORS", "missing_folders", "prepare_folder", "probe", "remove_empty_folders"]

@@ -5,15 +5,24 @@ The three runners have one interface (``outcomes``, ``close``) and run the same 
 cluster gets the files in tasks of a few (:func:`chunks`), so that each worker overlaps reading, correcting
 and writing over consecutive files; in this process the files go through one pipeline. A pool's workers end
 with the process that started them, however it ends (:func:`exit_with_parent`).
+
+An interrupted batch (:class:`~picamcal.batch.stopping.Interrupt`) stops each runner the same way: no task is
+submitted and no file started; the files in flight are finished within :data:`~picamcal.batch.stopping.GRACE_S`
+or dropped: a pool's workers are then killed (their temporaries are stale, for the batch to remove), a
+cluster's tasks are cancelled (a write under way on the cluster still ends whole or not at all).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import multiprocessing
 import os
+import signal
 import socket
 import threading
+import time
+import uuid
 from collections.abc import Callable, Generator, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -21,11 +30,14 @@ from multiprocessing.context import BaseContext
 from typing import Any
 
 from ..errors import PicamcalError
-from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs
+from .stopping import Interrupt
+from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs, set_stop
 
 #: The most files in one task: the pipeline's start and end (reading the first file, writing the last, not
 #: overlapped) are paid once per task, and the outcomes come back once per task.
 MAX_CHUNK = 8
+#: How often a runner waiting for its tasks looks whether the batch was interrupted.
+_POLL_S = 0.1
 
 
 def available_cores() -> int:
@@ -60,9 +72,12 @@ class InProcess:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
 
-    def outcomes(self, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
-        """Each job's outcome as it finishes (the pipeline stops by itself when the output place fails)."""
-        yield from outcomes(self.settings, jobs)
+    def outcomes(
+        self, jobs: Sequence[Job], stop: Callable[[], bool], interrupt: Interrupt
+    ) -> Generator[Outcome, None, None]:
+        """Each job's outcome as it finishes (the pipeline stops by itself when the output place fails, and on an
+        interrupt: a write it leaves to its thread after the grace has a temporary the batch removes)."""
+        yield from outcomes(self.settings, jobs, cancel=interrupt.is_set)
 
     def close(self) -> None:
         pass
@@ -81,17 +96,31 @@ def chunks(jobs: Sequence[Job], workers: int) -> list[list[Job]]:
     return [list(jobs[start : start + size]) for start in range(0, len(jobs), size)]
 
 
-def _chunked(runner: Pool | Dask, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
+def _chunked(
+    runner: Pool | Dask, jobs: Sequence[Job], stop: Callable[[], bool], interrupt: Interrupt
+) -> Generator[Outcome, None, None]:
     """Run the tasks of ``jobs`` (:func:`chunks`), submitting as others finish so that at most ``runner.window``
-    are in flight, and none once ``stop()`` is true; each job's outcome as its task finishes."""
+    are in flight, and none once ``stop()`` is true or the batch is interrupted; each job's outcome as its task
+    finishes. Interrupted, the tasks in flight are told to start no other file (``runner.interrupt``) and
+    waited for until the grace ends; then they are dropped (``runner.abandon``) and their files not reported."""
     queue = iter(chunks(jobs, runner.workers))
     in_flight: dict[Any, list[Job]] = {}
     while True:
-        while not stop() and len(in_flight) < runner.window and (chunk := next(queue, None)) is not None:
+        while (
+            not stop()
+            and not interrupt.is_set()
+            and len(in_flight) < runner.window
+            and (chunk := next(queue, None)) is not None
+        ):
             in_flight[runner.submit(chunk)] = chunk
         if not in_flight:
             return
-        for future in runner.finished(list(in_flight)):
+        if interrupt.is_set():
+            runner.interrupt()
+            if interrupt.expired():
+                runner.abandon(list(in_flight))
+                return
+        for future in runner.finished(list(in_flight), _POLL_S):
             yield from _outcomes_of(future, in_flight.pop(future))
 
 
@@ -103,7 +132,7 @@ def _outcomes_of(future: Any, chunk: list[Job]) -> list[Outcome]:
         reason = "its worker process died (out of memory, or killed)"
     except Exception as exc:
         reason = f"the task was lost ({type(exc).__name__}: {exc})"
-    return [Outcome(job.index, reason) for job in chunk]
+    return [Outcome(job.index, reason, lost=True) for job in chunk]
 
 
 class Pool:
@@ -114,15 +143,31 @@ class Pool:
         self.workers = size
         self.window = 2 * size
         self.context = _pool_context()
+        self.stop = self.context.Event()  # the batch's interrupt, as the workers see it
         self.executor = self._executor()
 
     def _executor(self) -> ProcessPoolExecutor:
         threads = max(1, available_cores() // self.workers)
-        return ProcessPoolExecutor(self.workers, mp_context=self.context, initializer=_init_worker, initargs=(threads,))
+        return ProcessPoolExecutor(
+            self.workers, mp_context=self.context, initializer=_init_worker, initargs=(threads, self.stop)
+        )
 
-    def outcomes(self, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
-        """Each job's outcome as its task finishes; no task is started once ``stop()`` is true."""
-        return _chunked(self, jobs, stop)
+    def outcomes(
+        self, jobs: Sequence[Job], stop: Callable[[], bool], interrupt: Interrupt
+    ) -> Generator[Outcome, None, None]:
+        """Each job's outcome as its task finishes; no task is started once ``stop()`` is true or the batch is
+        interrupted."""
+        return _chunked(self, jobs, stop, interrupt)
+
+    def interrupt(self) -> None:
+        """Tell the workers to start no other file."""
+        self.stop.set()
+
+    def abandon(self, futures: list[Any]) -> None:
+        """Drop the tasks in flight: kill the workers, whose temporaries are then stale. The executor's own
+        processes are private to it (ProcessPoolExecutor kills its workers itself only from Python 3.14)."""
+        for process in list(getattr(self.executor, "_processes", {}).values()):
+            process.kill()
 
     def submit(self, chunk: list[Job]) -> Future[list[Outcome]]:
         try:
@@ -132,21 +177,25 @@ class Pool:
             self.executor = self._executor()
             return self.executor.submit(process_jobs, self.settings, chunk)
 
-    def finished(self, futures: list[Any]) -> Iterable[Any]:
-        return wait(futures, return_when=FIRST_COMPLETED).done
+    def finished(self, futures: list[Any], timeout: float) -> Iterable[Any]:
+        return wait(futures, timeout=timeout, return_when=FIRST_COMPLETED).done
 
     def close(self) -> None:
         self.executor.shutdown(wait=True, cancel_futures=True)
 
 
-def _init_worker(threads: int) -> None:
-    """End with the process that started the pool, and share the cores among the workers.
+def _init_worker(threads: int, stop: Any) -> None:
+    """End with the process that started the pool, stop when it says so, and share the cores among the workers.
 
-    numba's parallel kernels would otherwise use a thread per core in every worker. numba's own runtime
-    setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it compiles and refuses a value
-    that differs from the threads it has started.
+    Ctrl-C reaches every process of the terminal's process group, the workers too: they ignore it, and the
+    process that started them stops them (``stop``, an event it sets), so that each finishes or drops its file
+    in flight as that process decides. numba's parallel kernels would otherwise use a thread per core in every
+    worker. numba's own runtime setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it compiles
+    and refuses a value that differs from the threads it has started.
     """
     exit_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    set_stop(stop)
     try:
         import numba
     except ImportError:  # no numba (32-bit Raspberry Pi OS): the numpy path runs in one thread anyway
@@ -185,25 +234,42 @@ class Dask:
     """The same jobs on a dask.distributed cluster (the caller connects and closes the client)."""
 
     def __init__(self, settings: Settings, client: Any) -> None:
-        from distributed import as_completed
+        from distributed import Event
 
-        self.settings = settings
         self.client = client
         self.workers = max(1, sum(client.nthreads().values()))
         self.window = 2 * self.workers
-        self.completed = as_completed(loop=client.loop)
+        self.stop = Event(f"picamcal-stop-{uuid.uuid4().hex}", client=client)  # the interrupt, as tasks see it
+        self.told = False
+        self.settings = dataclasses.replace(settings, stop_event=self.stop.name)
 
-    def outcomes(self, jobs: Sequence[Job], stop: Callable[[], bool]) -> Generator[Outcome, None, None]:
-        """Each job's outcome as its task finishes; no task is started once ``stop()`` is true."""
-        return _chunked(self, jobs, stop)
+    def outcomes(
+        self, jobs: Sequence[Job], stop: Callable[[], bool], interrupt: Interrupt
+    ) -> Generator[Outcome, None, None]:
+        """Each job's outcome as its task finishes; no task is started once ``stop()`` is true or the batch is
+        interrupted."""
+        return _chunked(self, jobs, stop, interrupt)
 
     def submit(self, chunk: list[Job]) -> Any:
-        future = self.client.submit(process_jobs, self.settings, chunk, pure=False)
-        self.completed.add(future)
-        return future
+        return self.client.submit(process_jobs, self.settings, chunk, pure=False)
 
-    def finished(self, futures: list[Any]) -> Iterable[Any]:
-        return self.completed.next_batch(block=True)
+    def interrupt(self) -> None:
+        """Tell the tasks to start no other file."""
+        if not self.told:
+            self.told = True
+            self.stop.set()
+
+    def abandon(self, futures: list[Any]) -> None:
+        """Drop the tasks in flight (a write under way on a worker still ends whole or not at all)."""
+        self.client.cancel(futures)
+
+    def finished(self, futures: list[Any], timeout: float) -> Iterable[Any]:
+        """The futures done, waiting ``timeout`` seconds at most for one (a future's state is kept up to date by
+        the client's own thread: looking is cheap)."""
+        deadline = time.monotonic() + timeout
+        while not (done := [future for future in futures if future.done()]) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        return done
 
     def close(self) -> None:
         pass

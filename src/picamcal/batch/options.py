@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import PicamcalError
+from ..errors import PicamcalError, closest
 from ..modes import Mode, parse_mode
 from ..output import BATCH_FORMATS, SRGB_FORMATS, TIFF_FORMATS
 from ..raw import HEADLESS_SUFFIXES, PATTERNS, PROCESSED_SUFFIXES, RAW_SUFFIXES
@@ -53,6 +53,11 @@ class BatchOptionError(PicamcalError, ValueError):
         return self.template.format_map(_Names(names or {}))
 
 
+def _did_you_mean(value: str, choices: Sequence[str]) -> str:
+    near = closest(value, choices, parts=True)
+    return f"; did you mean {near}?" if near else ""
+
+
 class _Names(dict):
     def __missing__(self, key: str) -> str:
         return key
@@ -64,9 +69,10 @@ class BatchOptions:
 
     Every check that needs no file is made here, once, when the value is made: the output place (a folder
     or a zarr stack, not both), the mode (:func:`picamcal.modes.parse_mode`; held as a
-    :class:`~picamcal.modes.Mode`), the format and compression, the options that go with processed images
-    only or raw images only, the workers and the Bayer pattern. What needs the files (the calibration, the
-    tuning file, the white reference) is checked by ``run_batch``, still before any work.
+    :class:`~picamcal.modes.Mode`, or None for the calibration's best), the format and compression, the options
+    that go with processed images only or raw images only, the workers and the Bayer pattern. What needs the
+    files (the calibration, the tuning file, the white reference) is checked by ``run_batch``, still before any
+    work.
 
     Attributes
     ----------
@@ -78,8 +84,10 @@ class BatchOptions:
     mosaic : (columns, rows), optional
         With ``zarr_path``: place the frames side by side as the tiles of one mosaic, in row-major order
         (frame i at row ``i // columns``, column ``i % columns``), instead of stacking them.
-    mode : Mode or str
-        Correction mode (:class:`picamcal.modes.Mode`; :func:`picamcal.correct`).
+    mode : Mode or str, optional
+        Correction mode (:class:`picamcal.modes.Mode`; :func:`picamcal.correct`). Default: the best the
+        calibration does (:func:`picamcal.correct.choose_mode`: ``centre``, or ``flat`` for a white-only
+        calibration), decided by ``run_batch`` when it has loaded the calibration (``BatchResult.mode``).
     binned : bool
         Write the bin-resolution image (raw inputs only).
     processed : bool
@@ -143,7 +151,7 @@ class BatchOptions:
     out_dir: PathArg | None = None
     zarr_path: PathArg | None = None
     mosaic: tuple[int, int] | None = None
-    mode: Mode | str = Mode.CENTRE
+    mode: Mode | str | None = None
     binned: bool = False
     processed: bool = False
     input_encoding: str | None = None
@@ -165,10 +173,12 @@ class BatchOptions:
     place: Path = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", parse_mode(self.mode))
+        if self.mode is not None:
+            object.__setattr__(self, "mode", parse_mode(self.mode))
         if self.output_format not in BATCH_FORMATS:
             raise PicamcalError(
                 f"unknown output format {self.output_format!r} (expected one of {', '.join(BATCH_FORMATS)})"
+                + _did_you_mean(self.output_format, BATCH_FORMATS)
             )
         if not self.processed and (self.white is not None or self.input_encoding is not None):
             raise BatchOptionError("{white} and {input_encoding} go with {processed}")
@@ -213,7 +223,10 @@ class BatchOptions:
     def _check_formats(self) -> None:
         """The format, compression and pattern: unknown names, and combinations no output can hold."""
         if self.compression is not None and self.compression not in COMPRESSIONS:
-            raise PicamcalError(f"unknown compression {self.compression!r} (expected one of {', '.join(COMPRESSIONS)})")
+            raise PicamcalError(
+                f"unknown compression {self.compression!r} (expected one of {', '.join(COMPRESSIONS)})"
+                + _did_you_mean(self.compression, COMPRESSIONS)
+            )
         if self.zarr_path is not None and self.output_format != "float32-tiff":  # dng formats included
             raise PicamcalError(
                 f"a zarr stack holds float32 only: write {self.output_format} files to a folder (--out)"
@@ -229,7 +242,10 @@ class BatchOptions:
                 self.tuning,
             )
         if self.pattern is not None and self.pattern not in PATTERNS:
-            raise PicamcalError(f"unknown Bayer pattern {self.pattern!r} (expected one of {', '.join(PATTERNS)})")
+            raise PicamcalError(
+                f"unknown Bayer pattern {self.pattern!r} (expected one of {', '.join(PATTERNS)})"
+                + _did_you_mean(self.pattern, PATTERNS)
+            )
 
     @property
     def encoding(self) -> str:

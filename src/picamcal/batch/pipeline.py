@@ -18,7 +18,9 @@ into memory it never used, and the correction itself 26 ms.
 
 The stages are plain functions of one job; a failure of one stage for one file is that file's outcome, and the
 others go on, except when ``fatal`` says the failure concerns every file (a full disk): then nothing more is
-read, corrected or written.
+read, corrected or written. A run can be cancelled from outside (``cancel``: the batch was interrupted): then no
+new file is read, corrected or written, the write under way is finished if it ends within ``grace`` seconds,
+and otherwise left to its thread (the caller discards its temporary).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import queue
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -39,6 +42,8 @@ OUTPUT_SLOTS = 2
 _J = TypeVar("_J")
 _END = object()  # sent down a queue after the last item
 _POLL_S = 0.1  # how often a blocked stage looks whether the pipeline was stopped
+#: Seconds a cancelled run waits for the write under way before it leaves it to its thread.
+CANCEL_GRACE_S = 0.8
 
 
 @dataclass
@@ -97,6 +102,8 @@ def overlapped(
     *,
     fatal: Callable[[Exception], bool] = lambda exc: False,
     slots: Sequence[Slot] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    grace: float = CANCEL_GRACE_S,
 ) -> Iterator[Finished[_J]]:
     """Run ``write(job, correct(read(job), slot))`` for every job, the three stages at once on consecutive jobs.
 
@@ -106,6 +113,9 @@ def overlapped(
     with it; other threads' warnings are left to the usual handling. After a failure for which ``fatal`` is
     true, nothing more is read, corrected or written, and the jobs not done are not reported. Closing the
     iterator early (or an exception in the caller) stops the stages likewise; a write under way is finished.
+    Once ``cancel()`` is true, likewise, but a write under way is waited for ``grace`` seconds only: after that
+    the run ends and leaves the write to its thread (its job is not reported, and the slots drop their arrays,
+    which that write may still be reading).
 
     Parameters
     ----------
@@ -123,6 +133,10 @@ def overlapped(
     slots : sequence of Slot, optional
         The output slots, with the arrays of an earlier run (:class:`SlotPool`); by default
         :data:`OUTPUT_SLOTS` new ones.
+    cancel : callable, optional
+        Whether the run is cancelled from outside (an interrupted batch); asked every :data:`_POLL_S` seconds.
+    grace : float
+        Seconds a cancelled run waits for the write under way.
 
     Yields
     ------
@@ -134,9 +148,10 @@ def overlapped(
     >>> sorted((f.job, f.error) for f in done)
     [(1, None), (2, None), (3, None)]
     """
-    run = _Run(jobs, fatal)
+    run = _Run(jobs, fatal, cancel)
+    own_slots = list(slots) if slots is not None else [Slot() for _ in range(OUTPUT_SLOTS)]
     free: queue.Queue[Slot] = queue.Queue()
-    for slot in slots if slots is not None else [Slot() for _ in range(OUTPUT_SLOTS)]:
+    for slot in own_slots:
         free.put(slot)
     inputs: queue.Queue[Any] = queue.Queue(maxsize=READ_AHEAD)
     outputs: queue.Queue[Any] = queue.Queue()  # never longer than OUTPUT_SLOTS: each item holds a slot
@@ -171,21 +186,28 @@ def overlapped(
                 del corrected
                 yield from run.drain()
             run.put(outputs, _END)
-            while (finished := run.finished.get()) is not _END:  # the writer sends _END however it ends
-                yield finished
+            yield from run.written(grace)
         finally:
             run.stop.set()
+            deadline = run.deadline(grace) if run.cancelled() else None
             for thread in threads:
-                thread.join()
+                thread.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+            if any(thread.is_alive() for thread in threads):  # a write left to its thread: it holds a slot's array
+                for slot in own_slots:
+                    slot.array = None
 
 
 class _Run(Generic[_J]):
     """What the stages of one :func:`overlapped` run share: the jobs, the stop signal, the finished jobs and
     the warnings each job gave."""
 
-    def __init__(self, jobs: Sequence[_J], fatal: Callable[[Exception], bool]) -> None:
+    def __init__(
+        self, jobs: Sequence[_J], fatal: Callable[[Exception], bool], cancel: Callable[[], bool] | None = None
+    ) -> None:
         self.jobs = jobs
         self.fatal = fatal
+        self.cancelled = cancel or (lambda: False)
+        self.cancelled_at: float | None = None
         self.stop = threading.Event()
         self.finished: queue.Queue[Any] = queue.Queue()  # Finished values, then _END
         self.current = threading.local()  # the position of the job this thread works on
@@ -212,6 +234,35 @@ class _Run(Generic[_J]):
             caught = tuple(self.caught.pop(position, ()))
         return Finished(self.jobs[position], error, caught)
 
+    def stopped(self) -> bool:
+        """Whether the stages should start nothing more: stopped (a fatal failure, the end) or cancelled."""
+        if self.stop.is_set():
+            return True
+        if self.cancelled():
+            self.deadline(0.0)  # the grace counts from the first stage that saw the cancel
+            return True
+        return False
+
+    def deadline(self, grace: float) -> float:
+        """When a cancelled run stops waiting for its stages: ``grace`` seconds after it was first asked."""
+        if self.cancelled_at is None:
+            self.cancelled_at = time.monotonic()
+        return self.cancelled_at + grace
+
+    def written(self, grace: float) -> Iterator[Finished[_J]]:
+        """The jobs the writer finishes, until it sends _END (which it does however it ends); once the run is
+        cancelled, until its :meth:`deadline`."""
+        while True:
+            try:
+                finished = self.finished.get(timeout=_POLL_S)
+            except queue.Empty:
+                if self.cancelled() and time.monotonic() > self.deadline(grace):
+                    return
+                continue
+            if finished is _END:
+                return
+            yield finished
+
     def drain(self) -> Iterator[Finished[_J]]:
         """The jobs the writer finished so far (its _END, the last thing it sends, is left for the end)."""
         while True:
@@ -225,8 +276,8 @@ class _Run(Generic[_J]):
             yield finished
 
     def get(self, source: queue.Queue[Any]) -> Any:
-        """The next item, or None once the run is stopped."""
-        while not self.stop.is_set():
+        """The next item, or None once the run is stopped or cancelled."""
+        while not self.stopped():
             try:
                 return source.get(timeout=_POLL_S)
             except queue.Empty:
@@ -234,8 +285,8 @@ class _Run(Generic[_J]):
         return None
 
     def put(self, target: queue.Queue[Any], item: Any) -> bool:
-        """Hand ``item`` on; False (dropped) once the run is stopped."""
-        while not self.stop.is_set():
+        """Hand ``item`` on; False (dropped) once the run is stopped or cancelled."""
+        while not self.stopped():
             try:
                 target.put(item, timeout=_POLL_S)
                 return True
@@ -245,7 +296,7 @@ class _Run(Generic[_J]):
 
     def reader(self, read: Callable[[_J], Any], inputs: queue.Queue[Any]) -> None:
         for position, job in enumerate(self.jobs):
-            if self.stop.is_set():
+            if self.stopped():
                 return
             self.current.position = position
             try:
@@ -263,7 +314,7 @@ class _Run(Generic[_J]):
             while (item := self.get(outputs)) is not None and item is not _END:
                 position, corrected, slot = item
                 del item
-                if self.stop.is_set():
+                if self.stopped():
                     return
                 self.current.position = position
                 try:
@@ -280,4 +331,4 @@ class _Run(Generic[_J]):
             self.finished.put(_END)
 
 
-__all__ = ["OUTPUT_SLOTS", "READ_AHEAD", "Finished", "Slot", "SlotPool", "overlapped"]
+__all__ = ["CANCEL_GRACE_S", "OUTPUT_SLOTS", "READ_AHEAD", "Finished", "Slot", "SlotPool", "overlapped"]

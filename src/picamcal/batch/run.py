@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import shutil
+import signal
+import time
 import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -11,18 +14,28 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import refuse_foreign, refuse_inputs_as_output
+from .._atomic import (
+    discard_own_temporaries,
+    is_own_folder,
+    refuse_foreign,
+    refuse_inputs_as_output,
+    remove_stale_temporaries,
+)
 from ..calibration import Calibration, load_calibration
+from ..correct import choose_mode
 from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..export.tuning import load_tuning
+from ..kernels import warm_numba
+from ..modes import Mode, best_mode_reason
 from ..output import OUTPUT_SUFFIXES, camera_to_srgb, is_picamcal_output, output_bytes
 from ..output.ome_zarr import ZarrStack
 from ..raw.processed import linearise, read_processed
 from ..records import sha256_file
-from .disk import prepare_folder, probe
+from .disk import missing_folders, prepare_folder, probe, remove_empty_folders
 from .executors import Dask, InProcess, Pool, Runner, available_cores, connect
 from .inputs import expand_inputs, is_pattern
 from .options import BatchOptions
+from .stopping import Interrupt
 from .worker import Job, Settings
 
 PathArg = str | os.PathLike[str]
@@ -40,11 +53,72 @@ class BatchResult:
         Inputs whose output existed already (written by an earlier, perhaps interrupted, run).
     failed : list of (Path, str)
         Inputs that could not be corrected, with the reason in one line.
+    mode : Mode or None
+        The mode the batch corrected in (None only for a result made by hand).
+    mode_reason : str or None
+        Why, when the options left the mode to the calibration (:func:`picamcal.modes.best_mode_reason`).
     """
 
     done: list[Path] = field(default_factory=list)
     skipped: list[Path] = field(default_factory=list)
     failed: list[tuple[Path, str]] = field(default_factory=list)
+    mode: Mode | None = None
+    mode_reason: str | None = None
+
+    def failure_of_one_file(self) -> PicamcalError | None:
+        """A batch of one file that failed: that file's failure, as the error a command of one file raises
+        (the command line's one line and exit status 2); otherwise None.
+
+        Examples
+        --------
+        >>> BatchResult(failed=[(Path("a.dng"), "no such file")]).failure_of_one_file()
+        PicamcalError('a.dng: no such file')
+        >>> BatchResult(done=[Path("b.dng")], failed=[(Path("a.dng"), "no such file")]).failure_of_one_file()
+        """
+        if len(self.failed) != 1 or self.done or self.skipped:
+            return None
+        path, reason = self.failed[0]
+        return PicamcalError(reason, path)
+
+
+class BatchInterrupted(KeyboardInterrupt):
+    """A batch stopped by SIGINT (Ctrl-C) or SIGTERM (:mod:`picamcal.batch.stopping`): it started no new file,
+    finished or dropped the files in flight and removed their temporaries; running it again resumes.
+
+    A :class:`KeyboardInterrupt`, so that a script that does not catch it stops as on Ctrl-C. Its text is the
+    one line the command line prints.
+
+    Attributes
+    ----------
+    result : BatchResult
+        What the batch did before it stopped.
+    total : int
+        The files it had to do (those done already not counted).
+    place : Path
+        Its output folder or stack.
+    signum : int
+        The signal; the command line exits with status 128 + ``signum`` (130 for SIGINT, 143 for SIGTERM).
+
+    Examples
+    --------
+    >>> import signal
+    >>> str(BatchInterrupted(BatchResult(done=[Path("a.dng")]), 24, Path("out"), signal.SIGINT))
+    'interrupted by SIGINT: wrote 1 of 24 image(s) to out; run the same command again to resume'
+    """
+
+    def __init__(self, result: BatchResult, total: int, place: Path, signum: int) -> None:
+        super().__init__(result, total, place, signum)
+        self.result, self.total, self.place, self.signum = result, total, place, signum
+
+    def __str__(self) -> str:
+        name = signal.Signals(self.signum).name
+        if not self.total:
+            return f"interrupted by {name} before any file was started: nothing written"
+        failed = f" ({len(self.result.failed)} failed)" if self.result.failed else ""
+        return (
+            f"interrupted by {name}: wrote {len(self.result.done)} of {self.total} image(s) to {self.place}{failed}; "
+            "run the same command again to resume"
+        )
 
 
 def run_batch(
@@ -57,11 +131,19 @@ def run_batch(
     """Correct many images in parallel; write an image file for each (``out_dir/<stem>.tiff``, ...) or one zarr stack.
 
     Everything about the batch as a whole is checked before any work: the options (when ``options`` was
-    made), the calibration, the tuning file and white reference, the inputs, the scheduler, and that the
-    output place can be written (a probe file the size of one output, removed again). After that a file that
-    fails (unreadable, or not of the calibration's size, sensor and Bayer order) is recorded in
+    made), the calibration and the mode (without one, the best the calibration does:
+    :func:`picamcal.correct.choose_mode`), the tuning file and white reference, the inputs, the scheduler, and
+    that the output place can be written (a probe file the size of one output, removed again). After that a
+    file that fails (unreadable, or not of the calibration's size, sensor and Bayer order) is recorded in
     :attr:`BatchResult.failed` and the others go on; only an output place that becomes unusable (disk full,
-    read-only) stops the batch, with an :class:`~picamcal.errors.OutputError`.
+    read-only) stops the batch, with an :class:`~picamcal.errors.OutputError`. A batch that writes nothing
+    leaves no output folder it created.
+
+    The output place may lie inside a folder of inputs (``scans/corrected`` for ``scans/``) when it is new or
+    picamcal's own (:func:`picamcal._atomic.is_own_folder`); it is never read as input, from a folder or a
+    pattern. SIGINT and SIGTERM stop the batch within about a second (:mod:`picamcal.batch.stopping`): no
+    new file is started, the files in flight are finished or dropped, their temporaries removed, and
+    :class:`BatchInterrupted` is raised.
 
     Parameters
     ----------
@@ -87,6 +169,8 @@ def run_batch(
     PicamcalError
         Before any work, for anything wrong with the batch as a whole; ``OutputError`` if the output place
         cannot be written, at the start or when it fills up (the message says how far the batch got).
+    BatchInterrupted
+        SIGINT or SIGTERM stopped it (a KeyboardInterrupt); it says how far the batch got.
 
     Examples
     --------
@@ -104,20 +188,39 @@ def run_batch(
     """
     if not isinstance(options, BatchOptions):  # the call of picamcal 0.1, run_batch(cal, inputs, out_dir, ...)
         raise TypeError(f"run_batch takes BatchOptions(out_dir=..., ...), not a {type(options).__name__}")
+    with Interrupt() as interrupt:
+        try:
+            return _run(calibration_path, inputs, options, progress, interrupt)
+        except KeyboardInterrupt as exc:  # a signal before the work started: nothing was written
+            if isinstance(exc, BatchInterrupted) or interrupt.signum is None:
+                raise
+            raise BatchInterrupted(BatchResult(), 0, options.place, interrupt.signum) from None
+
+
+def _run(
+    calibration_path: PathArg,
+    inputs: PathArg | Iterable[PathArg],
+    options: BatchOptions,
+    progress: Callable[[int, int], None] | None,
+    interrupt: Interrupt,
+) -> BatchResult:
+    items = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs)
+    if _corrects_here(items, options):
+        warm_numba()  # the kernel loads while the calibration and the file are read (a command's largest start cost)
     decode = _check_files(options)
     cal = load_calibration(calibration_path)
-    cal.check_mode(options.mode)  # a flat-field calibration has no centre or pure mode: say so before any work
+    mode = choose_mode(cal, options.mode)  # a flat-field calibration has no centre or pure mode: say so before work
     if options.output_format == "dng-gainmap":  # a flat field beyond the opcode's gains: say so before any work
         from ..raw import flat_field_gain_map
 
         flat_field_gain_map(cal)
     if options.processed:
         _check_processed_references(options.white, options.tuning, decode)
-    settings = _settings(calibration_path, options, decode)
-    items = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs)
-    sources = expand_inputs(items, options.input_suffixes)
+    settings = _settings(calibration_path, options, decode, mode)
+    sources = expand_inputs(items, options.input_suffixes, skip=options.place)
     named = [item for item in items if not is_pattern(item)]
-    refuse_inputs_as_output(options.place, [calibration_path, options.white, options.tuning, *named, *sources])
+    read = [calibration_path, options.white, options.tuning, *named, *sources]
+    refuse_inputs_as_output(options.place, read, own_folder=_own_place(options))
     if options.mosaic is not None and len(sources) > options.mosaic[0] * options.mosaic[1]:
         columns, rows = options.mosaic
         raise PicamcalError(f"{len(sources)} frames do not fit a mosaic of {columns} x {rows} tiles")
@@ -131,17 +234,22 @@ def run_batch(
         todo = stack.plan(options.overwrite)
         jobs = [Job(i, absolute[i], None) for i in todo]
         skipped = [source for i, source in enumerate(sources) if i in stack.done]
+    reason = best_mode_reason(cal.has_unmixing) if options.mode is None else None
+    result = BatchResult(skipped=skipped, mode=mode, mode_reason=reason)
     if not jobs:  # everything done already: a finished batch run again has nothing to do
-        return BatchResult(done=[], skipped=skipped, failed=[])
+        return result
     frame_shape = _frame_shape(cal, sources, jobs, settings)
 
     client = None if options.scheduler is None else connect(options.scheduler, settings, options.scheduler_timeout)
+    created: list[Path] = []
+    place_error = None
     try:
         if stack is not None:
+            created = [] if stack.resuming else missing_folders(options.place)
             stack.prepare(frame_shape, cal.bin_size if options.binned else 1, options.compression)
             probe(options.place, output_bytes("float32-tiff", frame_shape))
         else:
-            prepare_folder(options.place, output_bytes(options.output_format, frame_shape))
+            created = prepare_folder(options.place, output_bytes(options.output_format, frame_shape))
         runner: Runner
         if client is not None:
             runner = Dask(settings, client)
@@ -149,22 +257,70 @@ def run_batch(
             runner = InProcess(settings)
         else:
             runner = Pool(settings, max(1, min(options.workers or available_cores(), len(jobs))))
-        result = BatchResult(skipped=skipped)
-        place_error = _drive(runner, jobs, sources, result, stack, progress)
+        interrupt.working()
+        started_ns = time.time_ns() - 20_000_000  # file times come from a coarser clock, a few ms behind
+        place_error = _drive(runner, jobs, sources, result, stack, progress, interrupt)
     finally:
         if stack is not None:
             stack.release()
+            if interrupt.is_set():
+                stack.remove_partials()  # the chunks the killed workers were writing
         if client is not None:
             client.close()
+        if interrupt.is_set() and stack is None:  # the writes dropped: a killed worker's, or one left to a thread
+            remove_stale_temporaries(options.place)
+            discard_own_temporaries(options.place)
+        if not result.done:  # a stack this run made holds no frame: it goes too, if no other run writes it now
+            if stack is not None and options.place in created and stack.unused():
+                shutil.rmtree(options.place, ignore_errors=True)
+            remove_empty_folders(created)
+    if interrupt.is_set() and stack is None:  # a killed worker's task reports none of the files it wrote
+        _count_written(jobs, sources, result, started_ns)
     order = {path: i for i, path in enumerate(sources)}
     result.done.sort(key=order.__getitem__)
     result.failed.sort(key=lambda item: order[item[0]])
+    if interrupt.signum is not None:
+        raise BatchInterrupted(result, len(jobs), options.place, interrupt.signum)
     if place_error is not None:
         raise OutputError(
             f"{place_error}; stopped after {len(result.done)} of {len(jobs)} files (run again to resume)",
             options.place,
         )
     return result
+
+
+def _corrects_here(items: list[PathArg], options: BatchOptions) -> bool:
+    """Whether this process itself will correct raw frames with the kernel: ``workers=0``, or one file given by name
+    (a pool for one file is overhead, :func:`_run`); not processed images, not a frame that goes out unchanged."""
+    if options.processed or options.scheduler is not None or options.output_format == "dng-gainmap":
+        return False
+    if options.workers == 0:
+        return True
+    return options.workers is None and len(items) == 1 and not is_pattern(items[0]) and Path(items[0]).is_file()
+
+
+def _count_written(jobs: Sequence[Job], sources: list[Path], result: BatchResult, since_ns: int) -> None:
+    """Add to ``result.done`` the files an interrupted batch wrote whose task was dropped before it reported them:
+    their outputs are in place (renamed there whole, or not at all), written since the work began."""
+    reported = {*result.done, *(path for path, _ in result.failed)}
+    for job in jobs:
+        source = sources[job.index]
+        if source in reported or job.target is None:
+            continue
+        try:
+            written = os.stat(job.target, follow_symlinks=False).st_mtime_ns >= since_ns
+        except OSError:  # not written
+            continue
+        if written:
+            result.done.append(source)
+
+
+def _own_place(options: BatchOptions) -> Callable[[Path], bool]:
+    """Whether an existing output place inside a folder of inputs is picamcal's own: a folder of its images (a
+    zarr stack of another kind is refused by the stack's own plan)."""
+    if options.zarr_path is not None:
+        return lambda place: True
+    return lambda place: is_own_folder(place, is_picamcal_output)
 
 
 def _check_files(options: BatchOptions) -> str:
@@ -181,12 +337,12 @@ def _check_files(options: BatchOptions) -> str:
     return decode
 
 
-def _settings(calibration_path: PathArg, options: BatchOptions, decode: str) -> Settings:
+def _settings(calibration_path: PathArg, options: BatchOptions, decode: str, mode: Mode) -> Settings:
     """What the workers need, with absolute paths (a dask worker has another working folder)."""
     return Settings(
         calibration=str(Path(calibration_path).absolute()),
         calibration_sha256=sha256_file(Path(calibration_path)),
-        mode=str(options.mode),
+        mode=str(mode),
         binned=options.binned,
         processed=options.processed,
         input_encoding=options.encoding,
@@ -277,17 +433,21 @@ def _drive(
     result: BatchResult,
     stack: ZarrStack | None,
     progress: Callable[[int, int], None] | None,
+    interrupt: Interrupt,
 ) -> str | None:
     """Run the jobs and record each outcome. Returns why the output place became unusable, if it did (then no
-    more work was started)."""
+    more work was started). Interrupted, the files whose task was lost (its worker killed) are neither done nor
+    failed: a re-run does them."""
     place_error = None
     count = 0
     if progress is not None:
         progress(0, len(jobs))
     by_index = {job.index: job for job in jobs}
-    outcomes = runner.outcomes(jobs, lambda: place_error is not None)
+    outcomes = runner.outcomes(jobs, lambda: place_error is not None, interrupt)
     try:
         for outcome in outcomes:
+            if outcome.lost and interrupt.is_set():
+                continue
             job = by_index[outcome.index]
             source = sources[job.index]
             for message in outcome.warnings:
@@ -310,4 +470,4 @@ def _drive(
     return place_error
 
 
-__all__ = ["BatchResult", "run_batch"]
+__all__ = ["BatchInterrupted", "BatchResult", "run_batch"]

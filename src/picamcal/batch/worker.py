@@ -9,6 +9,8 @@ calibration by its path and SHA-256.
 
 from __future__ import annotations
 
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,6 +55,7 @@ class Settings:
     overwrite: bool
     zarr_array: str | None  # absolute path of the stack's array, or None for image files
     mosaic: tuple[int, int] | None = None  # (columns, rows): frame i is the tile at row, column = divmod(i, columns)
+    stop_event: str | None = None  # on a dask cluster: the name of the distributed.Event that stops the batch
 
 
 @dataclass(frozen=True)
@@ -72,12 +75,24 @@ class Outcome:
     error: str | None = None
     place_error: str | None = None  # the output place is unusable (disk full, read-only): stop the batch
     warnings: tuple[str, ...] = ()
+    lost: bool = False  # the task was lost with its worker or cluster, not failed by the file itself
 
 
 #: Per worker process: what was loaded once (calibration, white reference, tuning), keyed by what identifies it.
 _CACHE: dict[tuple, Any] = {}
 #: Per worker process: the output slots, kept from one task to the next.
 _SLOTS = SlotPool()
+#: Per pool worker process: what says that the batch was interrupted (set by :func:`set_stop`).
+_STOP: Any = None
+#: Seconds between two looks at a dask cluster's stop event (each is a round trip to the scheduler).
+_DASK_LOOK_S = 0.2
+
+
+def set_stop(event: Any) -> None:
+    """Give this worker process the event (``is_set()``) by which the batch's own process stops its tasks: no new
+    file is started once it is set."""
+    global _STOP
+    _STOP = event
 
 
 def _cached(key: tuple, load: Callable[[], _T]) -> _T:
@@ -115,15 +130,37 @@ def process_jobs(settings: Settings, jobs: Sequence[Job]) -> list[Outcome]:
     """Correct some files and write their outputs: the task every worker runs (a top-level function, picklable).
 
     Never raises for a problem with a file: each file's outcome says what went wrong, in one line. The files go
-    through :func:`outcomes`, reading, correcting and writing overlapped.
+    through :func:`outcomes`, reading, correcting and writing overlapped. Once the batch is interrupted (the
+    pool's event, :func:`set_stop`, or the cluster's, ``settings.stop_event``), no new file is started and the
+    files not done have no outcome.
     """
-    return list(outcomes(settings, jobs))
+    if settings.stop_event is not None:
+        return list(outcomes(settings, jobs, cancel=_dask_stop(settings.stop_event)))
+    return list(outcomes(settings, jobs, cancel=None if _STOP is None else _STOP.is_set))
 
 
-def outcomes(settings: Settings, jobs: Sequence[Job]) -> Iterator[Outcome]:
+def _dask_stop(name: str) -> Callable[[], bool]:
+    """Whether the cluster's event ``name`` is set, asked of the scheduler at most every :data:`_DASK_LOOK_S`."""
+    from distributed import Event, get_client
+
+    event = Event(name, client=get_client())  # the worker's client, known in the task's thread only
+    seen = {"at": 0.0, "set": False}
+    lock = threading.Lock()
+
+    def is_set() -> bool:
+        with lock:
+            if not seen["set"] and time.monotonic() - seen["at"] > _DASK_LOOK_S:
+                seen.update(at=time.monotonic(), set=event.is_set())
+            return bool(seen["set"])
+
+    return is_set
+
+
+def outcomes(settings: Settings, jobs: Sequence[Job], cancel: Callable[[], bool] | None = None) -> Iterator[Outcome]:
     """Each job's outcome as it finishes, the jobs read, corrected and written at once
-    (:func:`picamcal.batch.pipeline.overlapped`); after a failure of the output place itself (a full disk),
-    nothing more is done and the jobs not done have no outcome."""
+    (:func:`picamcal.batch.pipeline.overlapped`); after a failure of the output place itself (a full disk), or
+    once ``cancel()`` is true (the batch was interrupted), nothing more is started and the jobs not done have
+    no outcome."""
     try:
         calibration_of(settings)  # once, here, before the stages' threads would each load it
     except PicamcalError as exc:
@@ -131,7 +168,9 @@ def outcomes(settings: Settings, jobs: Sequence[Job]) -> Iterator[Outcome]:
         return
     stages = _Stages(settings)
     with _SLOTS.taken() as slots:
-        for finished in overlapped(jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error, slots=slots):
+        for finished in overlapped(
+            jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error, slots=slots, cancel=cancel
+        ):
             yield _outcome(finished)
 
 
@@ -273,4 +312,4 @@ def _colour_matrix(settings: Settings, source_metadata: dict[str, Any]) -> Colou
     return camera_to_srgb(source_metadata, _tuning(settings.tuning), tuning_path=settings.tuning)
 
 
-__all__ = ["Job", "Outcome", "Settings", "calibration_of", "check_worker", "outcomes", "process_jobs"]
+__all__ = ["Job", "Outcome", "Settings", "calibration_of", "check_worker", "outcomes", "process_jobs", "set_stop"]

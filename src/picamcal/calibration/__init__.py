@@ -7,13 +7,15 @@ kind and ``metadata``, a 0-d unicode array holding a JSON record::
      "created": "2026-11-21T10:00:00+00:00", "sensor": "imx219", "pattern": "BGGR",
      "width": 3280, "height": 2464, "bin_size": 16, "black_level": [64, 64, 64, 64],
      "black_level_source": "references", "white_level": 1023, "bit_depth": 10, "smoothing": 0.0,
-     "centre_region": [51, 102, 68, 136], "ill_conditioned_bins": 0,
+     "light": "jig", "centre_region": [51, 102, 68, 136], "ill_conditioned_bins": 0,
      "inputs": [{"role": "white", "name": "white.dng", "sha256": "...", "format": "dng"}, ...]}
 
 A calibration made with extra colour references lists them in ``inputs`` (role ``colour_<name>``; their
 responses are not stored, ``site_responses`` keeps the white, red, green and blue); one made with a bound on its
 noise penalty holds ``"noise_limit": {"max_noise_penalty": 2.5, ...}`` (:attr:`Calibration.noise_limit`). Both are
-optional keys of version 1: files without them load as before, and the arrays are the same.
+optional keys of version 1: files without them load as before, and the arrays are the same. So is ``light``, the
+light the references were taken under (:data:`LIGHTS`: ``jig``, ``screen``, ``sheets``; null or absent: not
+recorded).
 
 Two kinds (``"kind"``; a file without the key is ``"full"``, as every file before flat ones existed):
 
@@ -52,6 +54,7 @@ from .schema import (
     FLAT_ARRAYS,
     GLOBAL_ARRAYS,
     KINDS,
+    LIGHTS,
     RECORD_FIELDS,
     SCHEMA,
     SCHEMA_VERSION,
@@ -66,6 +69,7 @@ __all__ = [
     "FLAT_ARRAYS",
     "GLOBAL_ARRAYS",
     "KINDS",
+    "LIGHTS",
     "RECORD_FIELDS",
     "SCHEMA",
     "SCHEMA_VERSION",
@@ -137,6 +141,11 @@ class Calibration:
         Bits per pixel of the references.
     smoothing : float
         Standard deviation (bins) of the Gaussian applied to the binned responses.
+    light : str or None
+        The light the references were taken under, one of :data:`LIGHTS` (``jig``: the jig's LEDs, ``screen``: a
+        monitor's full-screen colours, ``sheets``: printed sheets), as ``picamcal calibrate`` read it from an
+        acquisition's manifest or was told (``--light``); None when not recorded. The report picks the expected
+        accuracy of that workflow (:func:`picamcal.analysis.verdicts.expected_accuracy`).
     provenance : mapping
         The rest of the record, read-only: ``inputs`` (one entry per reference role: name, checksum, format,
         exposure; extra colour references as ``colour_<name>``, with every colour reference's ``fit_residual``
@@ -205,6 +214,7 @@ class Calibration:
     white_level: float | None = None
     bit_depth: int | None = None
     smoothing: float = 0.0
+    light: str | None = None
     provenance: Mapping[str, Any] = field(default_factory=lambda: {"inputs": []})
     # The flat field (both kinds).
     site_responses: np.ndarray
@@ -407,7 +417,11 @@ picamcal calibrate --white WHITE --unmixing-from JIG.npz
         """
         parsed = parse_mode(mode)
         if parsed.needs_unmixing:
-            self.require_unmixing(f"mode {parsed.value}")
+            try:
+                self.require_unmixing(f"mode {parsed.value}")
+            except CalibrationFileError as exc:  # and the mode this calibration does, under its option's name
+                fix = f"{exc.problem}; or correct with --mode flat (its flat field)"
+                raise CalibrationFileError(fix, exc.path) from None
         return parsed
 
     # Geometry ---------------------------------------------------------------------------------------
@@ -542,7 +556,8 @@ picamcal calibrate --white WHITE --unmixing-from JIG.npz
     def check_compatible(self, raw: RawImage) -> None:
         """Raise CalibrationFileError if ``raw`` is not from the sensor, size and pattern this calibration is for."""
         problems = []
-        if self.sensor and raw.sensor and raw.sensor != self.sensor:
+        by_size = raw.metadata.get("sensor_source") == "size"  # taken from the frame's size: the calibration says
+        if self.sensor and raw.sensor and raw.sensor != self.sensor and not by_size:
             problems.append(f"sensor {raw.sensor}, calibration is for {self.sensor}")
         if (raw.width, raw.height) != (self.width, self.height):
             problems.append(f"size {raw.width}x{raw.height}, calibration is for {self.width}x{self.height}")

@@ -54,6 +54,13 @@ _IMAGE_SIGNATURES = {
 _ZIP = b"PK\x03\x04"
 
 
+class ImageNotCalibrationError(CalibrationFileError):
+    """An image given where a calibration belongs; ``kind`` says which (``"a raw image"``, ``"an image"``), so that
+    a command whose fix is another (``export-tuning``: make a calibration first) can say so."""
+
+    kind = "an image"
+
+
 def _not_a_calibration(path: Path) -> None:
     """Raise the one-line error for a file that is plainly not a calibration, from its first bytes."""
     from ..raw.npz import is_raw_npz
@@ -71,10 +78,12 @@ def _not_a_calibration(path: Path) -> None:
     elif what is None and not head.startswith(_ZIP) and path.suffix.lower() == ".raw":
         what = "a raw image"  # a headless dump has no signature, only its name
     if what is not None:
-        raise CalibrationFileError(
+        error = ImageNotCalibrationError(
             f"this is {what}, not a calibration (the calibration comes first: picamcal correct CALIBRATION IMAGE...)",
             path,
         )
+        error.kind = what
+        raise error
     if not head.startswith(_ZIP):
         raise CalibrationFileError("not a picamcal calibration file (not an .npz archive)", path)
 

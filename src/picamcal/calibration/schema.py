@@ -60,7 +60,15 @@ RECORD_FIELDS = (
     "white_level",
     "bit_depth",
     "smoothing",
+    "light",
 )
+#: The lights a calibration's references can be taken under (:attr:`Calibration.light`), named as the workflows of
+#: docs/accuracy.md (``picamcal/data/accuracy.json``) name them, with what each is. None (or no key): not recorded.
+LIGHTS: dict[str, str] = {
+    "jig": "the jig's LEDs",
+    "screen": "a monitor's full-screen colours",
+    "sheets": "printed sheets under one light",
+}
 #: A record key derived from the arrays (``ill_conditioned``): written for people reading the file, never read back.
 DERIVED_KEYS = ("ill_conditioned_bins",)
 #: The one field that is not real floating point: which bins were filled from their neighbours.
@@ -110,6 +118,8 @@ def check_record(meta: Any, path: Path | None, error: type[PicamcalError]) -> tu
     for key in ("software_version", "created", "black_level_source"):
         if key in meta:
             fields.text(meta[key], f"record {key!r}")
+    if meta.get("light") is not None:
+        fields.text(meta["light"], "record 'light'", tuple(LIGHTS))
     black = fields.numbers(meta.get("black_level", [0, 0, 0, 0]), "record 'black_level'", 4, minimum=0)
     if "white_level" in meta:
         fields.number(meta["white_level"], "record 'white_level'", minimum=max(black) + 1)

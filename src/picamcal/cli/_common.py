@@ -37,6 +37,12 @@ class _Group(TyperGroup):
             option.default = False
         return option
 
+    def format_help_text(self, ctx: Any, formatter: Any) -> None:
+        """The app's help, then the order to run the commands in (:data:`WORKFLOW`), above the options and commands."""
+        super().format_help_text(ctx, formatter)
+        with formatter.section("Workflow, in this order"):
+            formatter.write_dl([(f"{step}. {name}", what) for step, (name, what) in enumerate(WORKFLOW, 1)])
+
     def format_commands(self, ctx: Any, formatter: Any) -> None:
         rows = []
         for name in self.list_commands(ctx):
@@ -48,6 +54,15 @@ class _Group(TyperGroup):
                 formatter.write_dl(rows)
 
 
+#: The commands of the usual workflow, in the order to run them, with what each does: ``picamcal --help`` shows them
+#: above the list of every command.
+WORKFLOW = (
+    ("inspect", "check what picamcal reads from your raw files"),
+    ("calibrate", "measure the flat field and colour unmixing from references"),
+    ("correct", "correct your images with the calibration"),
+    ("export-tuning", "put the flat field into libcamera's tuning files"),
+    ("report", "check the calibration: verdicts, maps, expected accuracy"),
+)
 # Plain help (click's), not rich's: typer's rich help imports markdown and syntax highlighting, which doubled the time
 # every --help took; the content is the same, with paragraphs wrapped to the terminal.
 app = typer.Typer(
@@ -151,17 +166,40 @@ FrameOption = Annotated[
         "--frame", help="With --raw-format: the frame of a multi-frame dump (0 = the first).", callback=in_range(0)
     ),
 ]
+
+
+def parse_sensor(value: str | None) -> str | None:
+    """``--sensor``: a registry sensor's name, or a sensor outside the registry, with one warning
+    (:func:`picamcal.sensors.given_sensor`); a near miss of a registry name gets "did you mean"."""
+    if value is None:
+        return None
+    from ..sensors import given_sensor
+
+    try:
+        return given_sensor(value)
+    except PicamcalError as exc:
+        raise typer.BadParameter(exc.problem, param_hint="--sensor") from None
+
+
 RawSensorOption = Annotated[
-    str | None, typer.Option("--sensor", help="The sensor, for files that do not say (headless dumps).")
+    str | None,
+    typer.Option(
+        "--sensor",
+        help="The sensor, for files that do not name it (picamera2's DNGs, headless dumps): imx219, imx477, ... A "
+        "file of a size only one sensor has is taken as that sensor; another name is a sensor picamcal knows "
+        "nothing of.",
+        callback=parse_sensor,
+    ),
 ]
 
 
 def choice(value: str, choices: Sequence[str], option: str) -> str:
-    """``value`` as one of ``choices``, compared case-insensitively; a near miss gets "did you mean"."""
+    """``value`` as one of ``choices``, compared case-insensitively; a near miss, of a whole choice or of one of its
+    parts (``png`` of ``srgb-png``), gets "did you mean"."""
     by_key = {c.lower(): c for c in choices}
     if value.lower() in by_key:
         return by_key[value.lower()]
-    near = closest(value, choices)
+    near = closest(value, choices, parts=True)
     hint = f"; did you mean {near}?" if near else ""
     raise typer.BadParameter(f"{value!r} is not one of {', '.join(choices)}{hint}", param_hint=option)
 

@@ -89,6 +89,14 @@ def calibrate_cmd(
     stride: StrideOption = None,
     frame: FrameOption = None,
     sensor: RawSensorOption = None,
+    light: Annotated[
+        str | None,
+        typer.Option(
+            help="The light of the references: jig (the jig's LEDs), screen (a monitor's full-screen colours) or "
+            "sheets (printed sheets), for the report's expected accuracy; read from the manifest of a folder that "
+            "picamcal acquire wrote. Default: unknown."
+        ),
+    ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Measure the flat field, and with red, green and blue references the colour-unmixing field.
@@ -97,11 +105,14 @@ def calibrate_cmd(
     balance, for correct --mode uncorrected|flat, export-tuning and export-lst. With --unmixing-from, a white
     through your own optics takes the unmixing of a jig calibration. Prints the checks that need a look.
     """
+    import dataclasses
+
     from ..analysis.diagnostics import diagnose
     from ..calibrate import calibrate, calibrate_in_situ
-    from ..calibration import is_calibration_file
-    from ..references import COLOURS, colour_name, find_references
+    from ..calibration import LIGHTS, is_calibration_file
+    from ..references import COLOURS, colour_name, find_references, reference_light
 
+    light = choice(light, tuple(LIGHTS), "--light") if light is not None else None
     named = {"white": white, "red": red, "green": green, "blue": blue, "black": black}
     refs: dict[str, Any] = find_references(folder, in_situ=unmixing_from is not None) if folder is not None else {}
     refs.update({role: paths[0] if len(paths) == 1 else paths for role, paths in named.items() if paths})
@@ -119,6 +130,7 @@ def calibrate_cmd(
         )
     paths = [p for ref in refs.values() for p in (ref if isinstance(ref, list) else [ref])]
     check_output(out, overwrite, is_calibration_file, "a picamcal calibration", [*paths, unmixing_from, folder])
+    light = reference_light(folder, light)
     read = reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
 
     def frames(role: str) -> Any:  # several frames are read one at a time, as the calibration averages them
@@ -137,6 +149,8 @@ def calibrate_cmd(
                 bin_size=bin_size,
                 smoothing=smoothing,
             )
+        if light is not None:  # else what calibrate gave: unknown, or in situ the jig calibration's
+            cal = dataclasses.replace(cal, light=light)
         cal.save(out, overwrite=overwrite)
         checks = diagnose(cal)
     what = (
@@ -149,6 +163,7 @@ def calibrate_cmd(
         f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
         f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, {what}"
         + (f", unmixing from {unmixing_from.name}" if unmixing_from else "")
+        + (f", light {cal.light} ({LIGHTS[cal.light]})" if cal.light else "")
     ]
     for info in cal.inputs:
         if info.get("frame_count", 1) > 1:
@@ -185,7 +200,12 @@ def correct_cmd(
         str | None,
         typer.Option(help="With --zarr: place the frames as COLUMNSxROWS tiles of one mosaic, row by row."),
     ] = None,
-    mode: Annotated[str, typer.Option(help=MODE_HELP)] = "centre",
+    mode: Annotated[
+        str | None,
+        typer.Option(
+            help=MODE_HELP + ". Default: the best the calibration does (centre; flat for a white-only calibration)."
+        ),
+    ] = None,
     binned: Annotated[bool, typer.Option(help="Write the bin-resolution image instead of full resolution.")] = False,
     processed: Annotated[
         bool, typer.Option(help="The images are processed (JPEG/PNG/TIFF from the camera's ISP), not raw.")
@@ -247,14 +267,16 @@ def correct_cmd(
 
     float32 linear RGB TIFF by default; uint16 linear TIFF for Fiji/ImageJ; sRGB PNG (8 or 16 bit) or
     JPEG, colour-managed, to look at (docs/outputs.md). Existing outputs are skipped, so running the same
-    command again resumes an interrupted batch. A file that fails is reported at the end and does not stop
-    the others (exit status 1).
+    command again resumes an interrupted batch (Ctrl-C or SIGTERM stop it within about a second). The output
+    folder may lie inside a folder of inputs (scans/corrected for scans/). A file that fails is reported and
+    does not stop the others (exit status 1); a single file that fails is an error (exit status 2).
     """
-    from ..batch import BatchOptionError, BatchOptions, run_batch
+    from ..batch import COMPRESSIONS, BatchInterrupted, BatchOptionError, BatchOptions, run_batch
     from ..output import BATCH_FORMATS
 
-    mode = parse_mode_option(mode)
+    mode = None if mode is None else parse_mode_option(mode)
     output_format = choice(output_format, BATCH_FORMATS, "--output-format")
+    compression = None if compression is None else choice(compression, COMPRESSIONS, "--compression")
     try:
         options = BatchOptions(
             out_dir=out,
@@ -281,26 +303,35 @@ def correct_cmd(
 
     def show(finished: int, total: int) -> None:
         if not bar:  # the bar appears when the work starts, after every check has passed
-            bar.update(task=progress.add_task(f"correcting ({mode})", total=total, rate=""), start=time.monotonic())
+            bar.update(task=progress.add_task("correcting", total=total, rate=""), start=time.monotonic())
             progress.start()
         elapsed = time.monotonic() - bar["start"]
         progress.update(bar["task"], completed=finished, rate=f"{finished / elapsed:.1f} files/s" if finished else "")
 
+    def say(line: str) -> None:
+        console().print(line, markup=False, highlight=False, soft_wrap=True)
+
     try:
         result = run_batch(calibration, inputs, options, progress=show)
+    except BatchInterrupted as stopped:  # the files that failed, then how far it got, in one line
+        progress.stop()
+        for path, reason in stopped.result.failed:
+            say(f"picamcal: failed: {path}: {reason}")
+        say(f"picamcal: {stopped}")
+        raise typer.Exit(128 + stopped.signum) from None
     finally:
         progress.stop()
+    if (error := result.failure_of_one_file()) is not None:  # one file: its one line, exit status 2
+        raise error
+    for path, reason in result.failed:
+        say(f"picamcal: failed: {path}: {reason}")
     elapsed = time.monotonic() - bar["start"] if bar else 0.0
     rate = f" ({len(result.done) / elapsed:.1f} files/s)" if result.done and elapsed > 0 else ""
-    console().print(
-        f"wrote {len(result.done)} image(s) to {zarr_path or out}{rate}; skipped {len(result.skipped)} "
-        f"(done already); failed {len(result.failed)}",
-        markup=False,
-        highlight=False,
-        soft_wrap=True,
+    why = f" ({result.mode_reason})" if result.mode_reason else ""
+    say(
+        f"wrote {len(result.done)} image(s) to {zarr_path or out}{rate} in mode {result.mode}{why}; skipped "
+        f"{len(result.skipped)} (done already); failed {len(result.failed)}"
     )
-    for path, reason in result.failed:
-        console().print(f"picamcal: failed: {path}: {reason}", markup=False, highlight=False, soft_wrap=True)
     if result.failed:
         raise typer.Exit(1)
 

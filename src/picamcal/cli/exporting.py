@@ -46,6 +46,13 @@ def export_tuning_cmd(
         typer.Option(help="Tuning file to start from (default: the sensor's stock file, for --target)."),
     ] = None,
     target: Annotated[str, typer.Option(help="Without --base: vc4 (Pi 4 and earlier), pisp (Pi 5) or both.")] = "both",
+    variant: Annotated[
+        str | None,
+        typer.Option(
+            help="Without --base: the stock file of a variant of the sensor (noir, wide, wide_noir, scientific, "
+            "6mm, 16mm, ...: those Raspberry Pi ships for it)."
+        ),
+    ] = None,
     ct: Annotated[
         int, typer.Option(help="Colour temperature of the table entry, kelvin.", callback=COLOUR_TEMPERATURE)
     ] = 4500,
@@ -55,35 +62,37 @@ def export_tuning_cmd(
     ccm: Annotated[bool, typer.Option("--ccm", help="Also write a static rpi.ccm from the calibration.")] = False,
     clip_gains: Annotated[bool, typer.Option(help="Clip gains above the hardware limit instead of refusing.")] = False,
     sensor: Annotated[
-        str | None, typer.Option(help="The sensor the base file is for (default: from its name).")
+        str | None,
+        typer.Option(
+            help="The sensor, where the calibration does not say it (picks the stock file); with --base, the sensor "
+            "the base is for (default: from its name)."
+        ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace existing output files.")] = False,
 ) -> None:
     """Write libcamera tuning files with a static lens shading table (rpi.alsc) from the calibration.
 
-    Without --base, starts from the sensor's stock file: libcamera's own on a Raspberry Pi, else the copy
-    picamcal ships; --target both (the default) writes one for a Pi 4 (vc4) and one for a Pi 5 (pisp).
+    Without --base, starts from the sensor's stock file (or its --variant's): libcamera's own on a Raspberry Pi,
+    else the copy picamcal ships; --target both (the default) writes one for a Pi 4 (vc4) and one for a Pi 5 (pisp).
+    Each file records, and this prints, the colour gains that make the calibration's white neutral through it.
     """
-    from ..calibration import load_calibration
     from ..export.tuning import (
         TARGET_NAMES,
         check_tuning,
+        export_bases,
         export_tuning,
         is_tuning_file,
+        load_calibration_to_export,
         load_tuning,
         save_tuning,
-        sensor_of_tuning_file,
-        stock_tuning_path,
     )
 
-    cal = load_calibration(calibration)
-    if base is not None:
-        bases = [base]
-    else:
-        if cal.sensor is None:
-            raise typer.BadParameter("the calibration does not say its sensor: give --base")
-        names = list(TARGET_NAMES) if choice(target, (*TARGET_NAMES, "both"), "--target") == "both" else [target]
-        bases = [stock_tuning_path(cal.sensor, TARGET_NAMES[name.lower()]) for name in names]
+    cal = load_calibration_to_export(calibration)
+    names = list(TARGET_NAMES) if choice(target, (*TARGET_NAMES, "both"), "--target") == "both" else [target.lower()]
+    chosen = export_bases(
+        cal, base=base, targets=[TARGET_NAMES[name] for name in names], variant=variant, sensor=sensor
+    )
+    bases = chosen.paths
     tunings = [load_tuning(path) for path in bases]
     if len(bases) > 1 and out.suffix.lower() == ".json":
         raise typer.BadParameter("two targets need a folder (or --target vc4 or pisp for one file)", param_hint="--out")
@@ -91,10 +100,7 @@ def export_tuning_cmd(
         outputs = [out]
     else:
         label = {target: name for name, target in TARGET_NAMES.items()}
-        outputs = [
-            out / f"{cal.sensor or sensor_of_tuning_file(path)}_{label[check_tuning(tuning)]}.json"
-            for path, tuning in zip(bases, tunings, strict=True)
-        ]
+        outputs = [out / f"{chosen.stem}_{label[check_tuning(tuning)]}.json" for tuning in tunings]
     refuse_inputs_as_output(out, [*bases, calibration])
     for path in outputs:
         check_output(path, overwrite, is_tuning_file, "a libcamera tuning file", [*bases, calibration])
@@ -106,7 +112,8 @@ def export_tuning_cmd(
             luminance_strength=luminance_strength,
             ccm=ccm,
             clip_gains=clip_gains,
-            base_sensor=sensor or sensor_of_tuning_file(base_path),
+            base_sensor=chosen.sensor,
+            base_path=base_path,
         )
         for tuning, base_path in zip(tunings, bases, strict=True)
     ]  # all before writing any: a table the Pi 5 cannot apply leaves nothing half-done
@@ -117,12 +124,16 @@ def export_tuning_cmd(
             raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
     for path, tuning, base_path in zip(outputs, exported, bases, strict=True):
         save_tuning(path, tuning, overwrite=overwrite)
+        red, blue = tuning["picamcal"]["colour_gains"]
         console().print(
-            f"wrote {path}: static lens shading for {tuning['target']} from {calibration.name} (base {base_path})",
+            f"wrote {path}: static lens shading for {tuning['target']} from {calibration.name} (base {base_path}); "
+            f"for a neutral white use --awbgains {red:g},{blue:g} / ColourGains ({red:g}, {blue:g})",
             markup=False,
             highlight=False,
             soft_wrap=True,
         )
+    if chosen.note:
+        console().print(chosen.note, markup=False, highlight=False, soft_wrap=True)
 
 
 @app.command("export-lst")
@@ -132,12 +143,12 @@ def export_lst_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Write the legacy firmware's lens shading table (uint8 .npy for the picamera fork)."""
-    from ..calibration import load_calibration
     from ..export.legacy import is_legacy_table, legacy_table, save_legacy_table
+    from ..export.tuning import load_calibration_to_export
 
     check_output(out, overwrite, is_legacy_table, "a legacy lens shading table", [calibration])
 
-    table = legacy_table(load_calibration(calibration))
+    table = legacy_table(load_calibration_to_export(calibration))
     save_legacy_table(out, table, overwrite=overwrite)
     console().print(f"wrote {out}: {table.shape} uint8, gains {table.min() / 32:.2f} to {table.max() / 32:.2f}")
 
@@ -146,10 +157,21 @@ def export_lst_cmd(
 def apply_tuning_cmd(
     tuning_file: Annotated[Path, typer.Argument(help="libcamera tuning file (.json).")],
     image: Annotated[Path, typer.Argument(help="Raw image.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output TIFF (float32 linear RGB).")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            "-o",
+            help="Output: .tiff (float32 linear RGB), .png (16-bit sRGB) or .jpg (sRGB); the white level is 1.",
+        ),
+    ],
     ccm: Annotated[bool, typer.Option("--ccm", help="Also apply the tuning's rpi.ccm.")] = False,
     colour_gains: Annotated[
-        str | None, typer.Option(help="Red and blue gains R,B (default: from the image, else 1,1).")
+        str | None,
+        typer.Option(
+            help="Red and blue gains R,B (default: those the tuning file records as making its calibration's white "
+            "neutral, else the image's, else 1,1)."
+        ),
     ] = None,
     sensor_crop: Annotated[
         str | None, typer.Option(help="X,Y,WIDTH,HEIGHT of the sensor mode's crop, in full-sensor pixels.")
@@ -171,10 +193,21 @@ def apply_tuning_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
+    import numpy as np
+
     from ..export.isp import applied_colour_gains, apply_tuning, full_sensor_size, mode_for_image
     from ..export.tuning import load_tuning
-    from ..output import is_picamcal_output, write_rgb_tiff
+    from ..output import NO_MATRIX, ColourMatrix, is_picamcal_output, write_corrected
 
+    # An input given as the output is the worse mistake: said first, whatever the suffix.
+    check_output(out, overwrite, is_picamcal_output, "an image picamcal wrote", [image, tuning_file])
+    output_format = _APPLY_TUNING_FORMATS.get(out.suffix.lower())
+    if output_format is None:
+        raise typer.BadParameter(
+            f"{out.name}: apply-tuning writes .tiff (float32 linear RGB), .png (16-bit sRGB) or .jpg (sRGB), "
+            f"not {out.suffix or 'a file without a suffix'}",
+            param_hint="--out",
+        )
     gains = parse_numbers(colour_gains, 2, "--colour-gains")
     if gains is not None and not all(0 < g <= MAX_COLOUR_GAIN for g in gains):
         raise typer.BadParameter(
@@ -190,22 +223,38 @@ def apply_tuning_cmd(
             param_hint="--sensor-crop",
         )
     given_size = parse_size(sensor_size, "--sensor-size")
-    check_output(out, overwrite, is_picamcal_output, "an image picamcal wrote", [image, tuning_file])
     tuning = load_tuning(tuning_file)
     headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
     raw = reader(pattern, black_level, **headless)(image)
     full = given_size or full_sensor_size(raw)
     crop_box = (int(crop[0]), int(crop[1]), int(crop[2]), int(crop[3])) if crop else None
     mode = mode_for_image(full, (raw.width, raw.height), crop_box)
-    given_gains = (gains[0], gains[1]) if gains else None
+    # The gains applied: those given, else those an exported file records as making its white neutral, else the
+    # raw's; recorded so that `correct --processed --tuning` divides out these very ones.
+    applied = applied_colour_gains(raw, (gains[0], gains[1]) if gains else None, tuning)
     try:
-        rgb = apply_tuning(raw, tuning, colour_gains=given_gains, ccm=ccm, mode=mode, ct=ct)
+        rgb = apply_tuning(raw, tuning, colour_gains=applied, ccm=ccm, mode=mode, ct=ct)
     except PicamcalError as exc:
         if exc.path is None:  # a problem with the tuning's content: the tuning dict does not know its file
             raise type(exc)(exc.problem, tuning_file) from None
         raise
-    # The gains applied, so that `correct --processed --tuning` divides out these very ones.
-    applied = list(applied_colour_gains(raw, given_gains))
-    info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm, "colour_gains": applied}
-    write_rgb_tiff(out, rgb, info, overwrite=overwrite)
-    console().print(f"wrote {out}")
+    info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm, "colour_gains": list(applied)}
+    # The sRGB files show the emulated ISP's output as it is: the sensor's white level at sRGB's, no other matrix.
+    matrix = ColourMatrix(np.eye(3), f"{tuning_file.name} rpi.ccm, applied by apply-tuning" if ccm else NO_MATRIX)
+    write_corrected(out, rgb, output_format, info, colour_matrix=matrix, white_level=1.0, overwrite=overwrite)
+    console().print(
+        f"wrote {out} ({output_format}, colour gains {applied[0]:g},{applied[1]:g})",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+#: What apply-tuning writes for each suffix of --out: picamcal's own writers (picamcal.output.write_corrected).
+_APPLY_TUNING_FORMATS = {
+    ".tif": "float32-tiff",
+    ".tiff": "float32-tiff",
+    ".png": "srgb-png16",
+    ".jpg": "srgb-jpeg",
+    ".jpeg": "srgb-jpeg",
+}

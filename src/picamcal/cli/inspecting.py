@@ -5,13 +5,11 @@
 
 import json
 import math
-import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
-from ..errors import PicamcalError, PicamcalWarning
 from ._common import (
     BlackOption,
     FrameOption,
@@ -40,25 +38,15 @@ def inspect_cmd(
 ) -> None:
     """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong.
 
-    Every file is listed, also those that are not images (sidecars, calibrations) and those that cannot be read
-    (with the reason); the exit status is 1 if any could not be read. One file that cannot be read is one error
-    line (exit status 2), as in every other command.
+    Every file is listed, also those that are not images (sidecars, calibrations, notes: "not an image") and those
+    that cannot be read (with the reason); the exit status is 1 if any could not be read. A folder with no images,
+    or one file that cannot be read or is not an image, is one error line (exit status 2), as in every other command.
     """
-    from ..describe import files_of, survey
+    from ..describe import inspect_files
 
     read = reader(pattern, black_level, raw_format=raw_format, size=size, stride=stride, frame=frame, sensor=sensor)
-    records = []
-    for path in files_of(files):
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            record = survey(path, read)
-        record["warnings"] = [
-            str(w.message).removeprefix(f"{path}: ") for w in caught if issubclass(w.category, PicamcalWarning)
-        ]
-        records.append(record)
+    records = inspect_files(files, read)
     unreadable = [r for r in records if not r["readable"]]
-    if len(files) == 1 and not files[0].is_dir() and unreadable:
-        raise PicamcalError(unreadable[0]["error"], unreadable[0].get("error_path", files[0]))
     if as_json:
         print(json.dumps(_json_safe(records), indent=2, default=str))
     else:
@@ -88,7 +76,7 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
     for heading in [*headings, "frames"] if frames else headings:
         table.add_column(heading)
     for r in records:
-        if "width" not in r:  # not an image: a sidecar, a calibration, or unreadable
+        if "width" not in r:  # not an image (a sidecar, a calibration, notes), or unreadable
             table.add_row(Text(Path(r["path"]).name), Text(r["format"] if r["readable"] else "unreadable"))
             continue
         row = [
@@ -98,7 +86,7 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
             f"{r['width']}x{r['height']}",
             r.get("pattern", "-"),
             r["bit_depth"],
-            _levels(r.get("black_level")),
+            _levels(r.get("black_level")) if r["raw"] else "-",
             r.get("white_level", "-"),
             _figure(r.get("exposure_time_s"), 1e3, " ms"),
             _figure(r.get("analogue_gain")),
@@ -114,13 +102,15 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
             stdout.print(f"{name}: cannot read: {r['error']}", markup=False, highlight=False, soft_wrap=True)
         if "note" in r:
             stdout.print(f"{name}: not raw: {r['note']}", markup=False, highlight=False, soft_wrap=True)
-        for warning in r["warnings"]:
+        for warning in [*r.get("notes", []), *r["warnings"]]:
             stdout.print(f"{name}: {warning}", style="yellow", markup=False, highlight=False, soft_wrap=True)
 
 
 def _levels(levels: list[float] | None) -> str:
     if not levels:
         return "-"
+    if not all(math.isfinite(v) for v in levels):  # the notes below the table say why
+        return "unknown"
     return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
 
 

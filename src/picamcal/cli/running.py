@@ -170,7 +170,10 @@ def demo_cmd(
     ] = "dng",
     tuning_base: Annotated[
         list[Path] | None,
-        typer.Option(help="A libcamera tuning file to write the lens shading into (repeatable)."),
+        typer.Option(
+            help="A libcamera tuning file to write the lens shading into (repeatable; default: the sensor's stock "
+            "vc4 and pisp files)."
+        ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Write into a folder that is not empty.")] = False,
 ) -> None:
@@ -224,8 +227,12 @@ def demo_cmd(
     for mode, meaning in figures["mode_meaning"].items():
         stdout.print(f"  {mode}: {meaning}")
     for name, record in figures["exports"].items():
-        stdout.print(f"  {name}: an independent white is flat to {record['white_flatness_percent']:.2f} % with it")
-    stdout.print(f"Calibration, previews (target_<mode>.png) and figures.json are in {out}/")
+        gains = record.get("colour_gains")
+        neutral = f" (neutral with colour gains {gains[0]:g},{gains[1]:g})" if gains else ""
+        stdout.print(
+            f"  {name}: an independent white is flat to {record['white_flatness_percent']:.2f} % with it{neutral}"
+        )
+    stdout.print(f"Calibration, previews (target_<mode>.png), the exports above and figures.json are in {out}/")
     stdout.print(f"The report: {out / 'report' / 'index.html'}")
 
 

@@ -41,6 +41,12 @@ GAIN_LIMITS = {"bcm2835": 16.0, "pisp": 8.0}
 CCM_LIMITS = (-8.0, 7.9999)
 #: The colour temperature (kelvin) libcamera's ALSC starts from when ``rpi.alsc`` gives no ``default_ct``.
 DEFAULT_CT = 4500.0
+#: The top-level entry where ``export-tuning`` records what it knows of the file (the colour gains that make the
+#: calibration's white neutral through it); libcamera's controller reads only ``version``, ``target`` and
+#: ``algorithms`` of a version 2 file (src/ipa/rpi/controller/controller.cpp), so it ignores this one.
+RECORD_KEY = "picamcal"
+#: Largest colour gain libcamera's Raspberry Pi IPA takes (the ``ColourGains`` control's range, 0 to 32).
+MAX_COLOUR_GAIN = 32.0
 
 
 class TuningError(PicamcalError):
@@ -86,10 +92,17 @@ a positive number, not 0 (libcamera would refuse it)
     if not isinstance(algorithms, list) or not all(isinstance(a, dict) and len(a) == 1 for a in algorithms):
         raise TuningError("'algorithms' must be a list of one-key objects", source)
     fields = Fields(source, TuningError, "a usable libcamera tuning file", "libcamera would refuse it")
+    if RECORD_KEY in tuning:  # libcamera ignores it; apply-tuning uses its colour gains
+        own = Fields(source, TuningError, "a usable tuning file", "export-tuning writes it: export again")
+        gains = own.mapping(tuning[RECORD_KEY], RECORD_KEY).get("colour_gains", [1, 1])
+        own.numbers(gains, f"{RECORD_KEY}.colour_gains", 2, positive=True, maximum=MAX_COLOUR_GAIN)
+    names = [next(iter(algorithm)) for algorithm in algorithms]
     for algorithm in algorithms:
         name, params = next(iter(algorithm.items()))
         check = _SECTION_CHECKS.get(name)
         if check is not None:
+            if names.count(name) > 1:  # libcamera's controller: "Algorithm type ... already exists"
+                fields.fail(name, "appears twice, and libcamera runs one algorithm of each type")
             check(fields, fields.mapping(params, name), target)
     return target
 
@@ -553,9 +566,12 @@ def tuning_ccm(tuning: dict[str, Any], ct: float) -> np.ndarray | None:
     return None
 
 
-def applied_colour_gains(raw: RawImage, colour_gains: tuple[float, float] | None = None) -> tuple[float, float]:
-    """The white balance gains (red, blue) :func:`apply_tuning` applies: ``colour_gains``, else the raw's
-    ``metadata["colour_gains"]`` (the gains the camera froze), else 1.
+def applied_colour_gains(
+    raw: RawImage, colour_gains: tuple[float, float] | None = None, tuning: Mapping[str, Any] | None = None
+) -> tuple[float, float]:
+    """The white balance gains (red, blue) to apply: ``colour_gains``, else (given a ``tuning``) those the tuning file
+    records as making its calibration's white neutral (``picamcal export-tuning`` writes them; ``apply-tuning``'s
+    default), else the raw's ``metadata["colour_gains"]`` (the gains the camera froze), else 1.
 
     What an ``apply_tuning`` output should record (as ``colour_gains``) so that :func:`processed_inputs` divides
     out the very gains it applied.
@@ -566,8 +582,11 @@ def applied_colour_gains(raw: RawImage, colour_gains: tuple[float, float] | None
     >>> raw, _ = simulate_target(make_camera("imx219", size=(320, 240)), seed=1)
     >>> applied_colour_gains(raw), applied_colour_gains(raw, (1.5, 1.2))
     ((2.0023, 1.0316), (1.5, 1.2))
+    >>> applied_colour_gains(raw, tuning={"picamcal": {"colour_gains": [1.9, 1.4]}})
+    (1.9, 1.4)
     """
-    red, blue = (raw.metadata.get("colour_gains") or (1.0, 1.0)) if colour_gains is None else colour_gains
+    recorded = (tuning or {}).get(RECORD_KEY, {}).get("colour_gains")
+    red, blue = colour_gains or recorded or raw.metadata.get("colour_gains") or (1.0, 1.0)
     return float(red), float(blue)
 
 
@@ -592,7 +611,8 @@ def apply_tuning(
     tuning : dict
         A version 2 tuning file (``load_tuning``).
     colour_gains : (red, blue), optional
-        White balance gains; default the raw's metadata ``colour_gains``, else 1.
+        White balance gains; default the raw's metadata ``colour_gains`` (the camera's frozen ones), else 1.
+        ``applied_colour_gains(raw, None, tuning)`` gives those an exported file records (``apply-tuning``'s default).
     ccm : bool
         Apply the tuning's ``rpi.ccm`` at ``ct``.
     mode : SensorMode, optional
@@ -714,8 +734,9 @@ def processed_inputs(
         The sensor area the image shows, in sensor pixels; default the whole sensor.
     colour_gains : (red, blue), optional
         The white balance gains the camera applied (Picamera2's ``ColourGains`` metadata). Default: the image's
-        ``metadata["colour_gains"]`` if it has them; else, for ``picamcal apply-tuning``'s output (which applied
-        the raw's frozen gains, those a calibration run freezes on its white), :func:`calibration_colour_gains`;
+        ``metadata["colour_gains"]`` if it has them (``picamcal apply-tuning`` records those it applied); else, for
+        an apply-tuning output that records none (it applied the raw's frozen gains, those a calibration run
+        freezes on its white), :func:`calibration_colour_gains`;
         else None: the camera's auto white balance ran on the white with this tuning loaded and was then frozen,
         so the image's white is neutral at the centre (:func:`picamcal.correct.correct_processed` keeps its
         balance there).

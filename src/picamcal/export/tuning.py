@@ -13,18 +13,29 @@ import json
 import math
 import os
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from .._atomic import atomic_path
-from .._json import read_json
+from .._json import read_libcamera_yaml
+from .._version import __version__
 from ..bayer import bin_edges
 from ..calibration import Calibration
-from ..errors import PicamcalWarning
+from ..errors import CalibrationFileError, PicamcalWarning
 from ..sensors import LSC_GRIDS, find_sensor_name
-from .isp import GAIN_LIMITS, TuningError, check_hardware_range, check_tuning, table_to_pixels
+from .isp import (
+    GAIN_LIMITS,
+    RECORD_KEY,
+    SensorMode,
+    TuningError,
+    channel_tables,
+    check_hardware_range,
+    check_tuning,
+    table_to_pixels,
+)
 
 #: Where libcamera installs the stock tuning files on Raspberry Pi OS.
 STOCK_TUNING_DIR = Path("/usr/share/libcamera/ipa/rpi")
@@ -36,13 +47,18 @@ TARGET_NAMES = {"vc4": "bcm2835", "pisp": "pisp"}
 
 
 def load_tuning(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read and check a libcamera tuning file (version 2 JSON with a known target), as libcamera would.
+    """Read and check a libcamera tuning file (version 2, a known target), as libcamera would.
+
+    libcamera reads tuning files with its YAML parser, so a JSON file with a trailing comma (two of Raspberry Pi's
+    own have one) loads, and what that parser refuses is refused with the reason and line
+    (:func:`picamcal._json.parse_libcamera_yaml`).
 
     Raises
     ------
     TuningError
-        Missing, not a regular file, unreadable, not UTF-8 JSON (or nested absurdly deep), not version 2, an
-        unknown target, or sections that break libcamera's rules (:func:`~picamcal.export.isp.check_tuning`).
+        Missing, not a regular file, unreadable, not what libcamera's parser reads (or nested absurdly deep), not
+        version 2, an unknown target, or sections that break libcamera's rules
+        (:func:`~picamcal.export.isp.check_tuning`).
 
     Examples
     --------
@@ -53,24 +69,81 @@ def load_tuning(path: str | os.PathLike[str]) -> dict[str, Any]:
     path = Path(path)
     if not os.path.lexists(path):
         raise TuningError("no such tuning file", path)
-    tuning = read_json(path, TuningError, "a JSON tuning file")
+    tuning = read_libcamera_yaml(path, TuningError, "a libcamera tuning file")
     check_tuning(tuning, path)
     return tuning
 
 
 def bundled_tuning_sensors(target: str) -> list[str]:
-    """The sensors whose stock tuning file for ``target`` ships with picamcal.
+    """The names of the stock tuning files for ``target`` that ship with picamcal (every one libcamera ships).
 
     Examples
     --------
-    >>> bundled_tuning_sensors("pisp")
-    ['imx219', 'imx477', 'imx708', 'ov5647']
+    >>> names = bundled_tuning_sensors("pisp")
+    >>> len(names), names[:3]
+    (34, ['imx219', 'imx219_noir', 'imx283'])
     """
     return sorted(p.stem for p in (BUNDLED_TUNING_DIR / _TARGET_DIRS[target]).glob("*.json"))
 
 
-def stock_tuning_path(sensor: str, target: str) -> Path:
-    """The stock tuning file of a sensor for a target (``"bcm2835"`` or ``"pisp"``).
+def stock_tuning_files(sensor: str) -> dict[str, dict[str, Path]]:
+    """A sensor's stock tuning files: variant (``""`` for the sensor's own file) -> target -> path.
+
+    The variants are the files named ``<sensor>_<variant>.json`` (``imx708_wide_noir.json``, ``imx477_16mm.json``)
+    that are not another registry sensor's (``imx296_mono.json`` is the monochrome ``imx296_mono``'s). Each file is
+    libcamera's installed one on a Raspberry Pi (``/usr/share/libcamera/ipa/rpi``), else the copy picamcal ships.
+
+    Examples
+    --------
+    >>> files = stock_tuning_files("imx708")
+    >>> sorted(files), sorted(files["wide"])
+    (['', 'noir', 'wide', 'wide_noir'], ['bcm2835', 'pisp'])
+    >>> {variant: sorted(targets) for variant, targets in stock_tuning_files("imx296").items()}
+    {'': ['bcm2835', 'pisp'], '6mm': ['pisp'], '16mm': ['pisp']}
+    """
+    sensor = sensor.lower()
+    files: dict[str, dict[str, Path]] = {}
+    for target, folder in _TARGET_DIRS.items():
+        for root in (STOCK_TUNING_DIR, BUNDLED_TUNING_DIR):
+            for path in sorted((root / folder).glob(f"{sensor}*.json")):
+                stem = path.stem.lower()
+                if stem == sensor:
+                    variant = ""
+                elif stem.startswith(f"{sensor}_") and find_sensor_name(stem) in (None, sensor):
+                    variant = stem[len(sensor) + 1 :]
+                else:
+                    continue
+                if path.is_file():
+                    files.setdefault(variant, {}).setdefault(target, path)
+    return dict(sorted(files.items(), key=lambda item: _variant_order(item[0])))
+
+
+def _variant_order(variant: str) -> tuple[int, int, str]:
+    """The sensor's own file, the variants by name, then the lens variants by focal length (6mm before 16mm)."""
+    digits = variant.removesuffix("mm")
+    return (2, int(digits), "") if variant.endswith("mm") and digits.isdigit() else (int(bool(variant)), 0, variant)
+
+
+def describe_variants(sensor: str) -> str:
+    """The variants of a sensor's stock tuning files, for a message: ``noir, wide, wide_noir`` (with the targets
+    of those that are not for both), or ``none``.
+
+    Examples
+    --------
+    >>> describe_variants("imx477")
+    'noir, scientific, v1 (vc4 only), 6mm (pisp only), 16mm (pisp only)'
+    """
+    names = {target: name for name, target in TARGET_NAMES.items()}
+    described = [
+        f"{variant} ({names[next(iter(targets))]} only)" if len(targets) == 1 else variant
+        for variant, targets in stock_tuning_files(sensor).items()
+        if variant
+    ]
+    return ", ".join(described) or "none"
+
+
+def stock_tuning_path(sensor: str, target: str, variant: str | None = None) -> Path:
+    """The stock tuning file of a sensor (or of one of its variants) for a target (``"bcm2835"`` or ``"pisp"``).
 
     On a Raspberry Pi, the file libcamera installed (it matches the libcamera the camera runs); elsewhere the
     copy picamcal ships (Raspberry Pi's stock files, BSD-2-Clause, ``picamcal/data/libcamera-tuning``).
@@ -78,23 +151,174 @@ def stock_tuning_path(sensor: str, target: str) -> Path:
     Raises
     ------
     TuningError
-        Neither exists for this sensor (then ``--base`` is needed).
+        The sensor has no stock file (then ``--base`` is needed), has no such variant (the message lists those it
+        has), or has none for this target.
 
     Examples
     --------
-    >>> stock_tuning_path("imx219", "pisp").name
-    'imx219.json'
+    >>> stock_tuning_path("imx219", "pisp").name, stock_tuning_path("imx708", "bcm2835", "wide").name
+    ('imx219.json', 'imx708_wide.json')
     """
-    folder = _TARGET_DIRS[target]
-    for root in (STOCK_TUNING_DIR, BUNDLED_TUNING_DIR):
-        path = root / folder / f"{sensor}.json"
-        if path.is_file():
-            return path
-    raise TuningError(
-        f"no stock {folder} tuning file for the {sensor}: picamcal ships those of "
-        f"{', '.join(bundled_tuning_sensors(target))}, and this is not a Raspberry Pi with libcamera's own in "
-        f"{STOCK_TUNING_DIR}; give the sensor's tuning file with --base"
-    )
+    return stock_tuning_bases(sensor, (target,), variant)[0][0]
+
+
+def stock_tuning_bases(
+    sensor: str, targets: Sequence[str] = ("bcm2835", "pisp"), variant: str | None = None
+) -> tuple[list[Path], str | None]:
+    """The stock tuning files of a sensor (or of one of its variants) for ``targets``, and a note on the targets
+    that have none (None if every one has a file).
+
+    Where several targets are asked for, those with a file are enough (``imx296_16mm`` is for the Pi 5 only;
+    ``imx327`` for earlier Pis only); where one is asked for, it must have one.
+
+    Raises
+    ------
+    TuningError
+        No stock file for the sensor (give ``--base``), no such variant (the message lists the sensor's), or none
+        for the targets asked for.
+
+    Examples
+    --------
+    >>> paths, note = stock_tuning_bases("imx296", variant="16mm")
+    >>> [p.name for p in paths], note
+    (['imx296_16mm.json'], 'Raspberry Pi ships no vc4 tuning file for the imx296_16mm: wrote the pisp one only')
+    """
+    sensor, variant = sensor.lower(), (variant or "").lower().replace("-", "_")
+    files = stock_tuning_files(sensor)
+    name = f"{sensor}_{variant}" if variant else sensor
+    labels = {target: label for label, target in TARGET_NAMES.items()}
+    if not files:
+        raise TuningError(
+            f"Raspberry Pi ships no stock tuning file for the {sensor}: give the sensor's tuning file with --base"
+        )
+    if variant not in files:
+        if variant:
+            other = find_sensor_name(name)
+            aside = f" ({name}.json is for the {other}, another sensor)" if other and other != sensor else ""
+            raise TuningError(
+                f"the {sensor} has no stock tuning variant {variant!r}{aside}; "
+                f"its variants: {describe_variants(sensor)}"
+            )
+        raise TuningError(
+            f"Raspberry Pi ships no standard tuning file for the {sensor}, only its variants: choose one with "
+            f"--variant ({describe_variants(sensor)})"
+        )
+    found = [files[variant][target] for target in targets if target in files[variant]]
+    missing = [labels[target] for target in targets if target not in files[variant]]
+    if not found:
+        raise TuningError(
+            f"Raspberry Pi ships no {' or '.join(missing)} tuning file for the {name}, only a "
+            f"{' and a '.join(labels[t] for t in files[variant])} one (--target)"
+        )
+    note = None
+    if missing:
+        written = " and ".join(labels[t] for t in targets if t in files[variant])
+        note = f"Raspberry Pi ships no {' or '.join(missing)} tuning file for the {name}: wrote the {written} one only"
+    return found, note
+
+
+class ExportBases(NamedTuple):
+    """What :func:`export_bases` chose: the base files, their name for the outputs, and a note for the user."""
+
+    #: The base tuning files, one per target.
+    paths: list[Path]
+    #: The sensor the export is for (given, the calibration's, or from the base's name), or None if nothing says.
+    sensor: str | None
+    #: The outputs' name before ``_<vc4|pisp>.json``: the sensor and variant (``imx708_wide``), else the base's.
+    stem: str
+    #: Which targets have no stock file (where others have), to tell the user; None if none is missing.
+    note: str | None
+
+
+def export_bases(
+    calibration: Calibration,
+    *,
+    base: str | os.PathLike[str] | None = None,
+    targets: Sequence[str] = ("bcm2835", "pisp"),
+    variant: str | None = None,
+    sensor: str | None = None,
+) -> ExportBases:
+    """The tuning files ``picamcal export-tuning`` starts from: ``base``, else the sensor's stock files for ``targets``.
+
+    The sensor is the calibration's, else ``sensor`` (checked with :func:`picamcal.sensors.given_sensor`: a near
+    miss of a registry name gets "did you mean"); a ``sensor`` that names a stock variant (``imx708_wide``) picks
+    that variant. With ``base``, ``sensor`` says which sensor the base is for (default: from its file name).
+
+    Raises
+    ------
+    TuningError
+        ``sensor`` is not the calibration's, nothing says the sensor, ``variant`` with ``base``, or no stock file
+        fits (:func:`stock_tuning_bases`: the message lists the sensor's variants).
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx708", size=(320, 180)), seed=1))
+    >>> chosen = export_bases(cal, variant="wide")
+    >>> [p.name for p in chosen.paths], chosen.stem
+    (['imx708_wide.json', 'imx708_wide.json'], 'imx708_wide')
+    """
+    from ..sensors import given_sensor
+
+    named = None
+    if sensor is not None:
+        named = given_sensor(sensor)
+        text = "_".join(sensor.lower().replace("-", "_").split())
+        suffix = text[len(named) + 1 :] if text.startswith(f"{named}_") else ""
+        if suffix and suffix in stock_tuning_files(named):  # --sensor imx708_wide: the wide Camera Module 3
+            if variant and variant.lower() != suffix:
+                raise TuningError(f"--sensor {sensor} is the {suffix} variant, but --variant says {variant}")
+            variant = suffix
+    if base is not None:
+        if variant:
+            raise TuningError("--variant chooses one of Raspberry Pi's stock files: leave it out with --base")
+        base_sensor = named or sensor_of_tuning_file(base)
+        return ExportBases([Path(base)], base_sensor, calibration.sensor or base_sensor or Path(base).stem, None)
+    if named and calibration.sensor and named != calibration.sensor:
+        raise TuningError(
+            f"the calibration is for the {calibration.sensor}, not the {named} --sensor names", calibration.path
+        )
+    chosen = calibration.sensor or named
+    if chosen is None:
+        raise TuningError(
+            "the calibration does not say its sensor: name it with --sensor (or give a tuning file with --base)",
+            calibration.path,
+        )
+    paths, note = stock_tuning_bases(chosen, targets, variant)
+    variant = (variant or "").lower().replace("-", "_")
+    return ExportBases(paths, chosen, f"{chosen}_{variant}" if variant else chosen, note)
+
+
+def load_calibration_to_export(path: str | os.PathLike[str]) -> Calibration:
+    """:func:`picamcal.calibration.load_calibration`, telling whoever gives an image to make a calibration first.
+
+    Raises
+    ------
+    CalibrationFileError
+        As ``load_calibration``; for an image: "this is a raw image, not a calibration: make one ... with picamcal
+        calibrate".
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> path = picamcal.write_dng("white.dng", simulate_references(make_camera("imx219", size=(320, 240)))["white"])
+    >>> load_calibration_to_export("white.dng")
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.CalibrationFileError: white.dng: this is a raw image, not a calibration: make one from the \
+reference images with picamcal calibrate, then export that .npz
+    """
+    from ..calibration import load_calibration
+    from ..calibration.archive import ImageNotCalibrationError
+
+    try:
+        return load_calibration(path)
+    except ImageNotCalibrationError as exc:
+        raise CalibrationFileError(
+            f"this is {exc.kind}, not a calibration: make one from the reference images with picamcal calibrate, "
+            "then export that .npz",
+            path,
+        ) from None
 
 
 def neutral_tuning(stock: dict[str, Any]) -> dict[str, Any]:
@@ -209,7 +433,8 @@ def alsc_tables(
     Raises
     ------
     TuningError
-        A gain would reach the hardware limit (8 on pisp, 16 on bcm2835) and ``clip_gains`` is False.
+        A gain would reach the hardware limit (8 on pisp, 16 on bcm2835) and ``clip_gains`` is False; the
+        message names the calibration's file.
 
     Warns
     -----
@@ -218,7 +443,9 @@ def alsc_tables(
     """
     t_r, t_g, t_b = fit_gain_tables(calibration, target)
     if np.any(np.array([t_r, t_g, t_b]) <= 0):
-        raise TuningError("the fitted lens shading table has gains <= 0: the white reference is too uneven")
+        raise TuningError(
+            "the fitted lens shading table has gains <= 0: the white reference is too uneven", calibration.path
+        )
     lum = t_g / t_g.min()
     cr, cb = t_r / t_g, t_b / t_g
     cr, cb = cr / cr.min(), cb / cb.min()
@@ -236,7 +463,9 @@ def alsc_tables(
             f"in {sum(int(m.sum()) for m in over.values())} cells ({where})"
         )
         if not clip_gains:
-            raise TuningError(f"{message}; pass --clip-gains to clip them (those areas then stay darker)")
+            raise TuningError(
+                f"{message}; pass --clip-gains to clip them (those areas then stay darker)", calibration.path
+            )
         warnings.warn(
             f"{message}: clipped, so those cells stay up to {100 * (1 - ceiling / worst):.0f} % darker",
             PicamcalWarning,
@@ -279,6 +508,7 @@ def export_tuning(
     ccm: bool = False,
     clip_gains: bool = False,
     base_sensor: str | None = None,
+    base_path: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """A copy of a tuning file with a static lens shading table (and optionally CCM) from the calibration.
 
@@ -288,6 +518,11 @@ def export_tuning(
     luminance table) is removed. With ``ccm``, ``rpi.ccm`` gets one matrix at ``ct``: the calibration's
     ``Cx``, which maps white-balanced camera RGB to the illuminator's primaries (sRGB only as far as the
     LEDs' primaries are sRGB's).
+
+    A top-level ``"picamcal"`` entry, which libcamera ignores, records the colour gains that make the
+    calibration's white neutral through this very file (:func:`neutral_colour_gains`: the tables of each
+    target are normalised differently, so each file needs its own), the calibration's file name and the
+    version of picamcal.
 
     Parameters
     ----------
@@ -304,6 +539,14 @@ def export_tuning(
         Clip gains at the hardware limit (with a warning) instead of refusing.
     base_sensor : str, optional
         The sensor the base file is for (from its file name); refused if the calibration's differs.
+    base_path : path-like, optional
+        The base's file, named in the errors about it.
+
+    Raises
+    ------
+    TuningError
+        The base is not a usable tuning file or is for another sensor (naming ``base_path``), or a gain is out
+        of the hardware's range (naming the calibration's file, see :func:`alsc_tables`).
 
     Examples
     --------
@@ -313,14 +556,16 @@ def export_tuning(
     >>> alsc = next(a["rpi.alsc"] for a in tuning["algorithms"] if "rpi.alsc" in a)
     >>> alsc["n_iter"], len(alsc["luminance_lut"])  # a static 32 x 32 table on a Pi 5
     (0, 1024)
+    >>> tuning["picamcal"]["colour_gains"]  # rpicam-still --awbgains 1.2308,0.9833 makes the white neutral
+    [1.2308, 0.9833]
     """
-    target = check_tuning(base)
+    target = check_tuning(base, base_path)
     if isinstance(ct, bool) or not isinstance(ct, (int, float)) or not math.isfinite(ct) or ct < 1:
         # libcamera refuses a table whose ct is not above the previous one, starting from 0
         raise TuningError(f"colour temperature {ct!r} is not a positive number of kelvin: give the light's, e.g. 4500")
     if base_sensor and calibration.sensor and base_sensor != calibration.sensor:
         raise TuningError(
-            f"the calibration is for the {calibration.sensor}, the base tuning file for the {base_sensor}"
+            f"the calibration is for the {calibration.sensor}, the base tuning file for the {base_sensor}", base_path
         )
     if not 0 <= luminance_strength <= 1:
         raise TuningError(f"luminance strength {luminance_strength} is outside 0..1")
@@ -345,7 +590,47 @@ def export_tuning(
         section["ccms"] = [{"ct": int(ct), "ccm": _ccm_from_calibration(calibration)}]
         _set_algorithm(algorithms, "rpi.ccm", section, after="rpi.contrast")
     check_hardware_range(tuning)
+    tuning.pop(RECORD_KEY, None)  # last, after the stock file's own keys
+    tuning[RECORD_KEY] = {
+        "colour_gains": list(neutral_colour_gains(calibration, tuning)),
+        "colour_gains_use": COLOUR_GAINS_USE,
+        "calibration": calibration.path.name if calibration.path else None,
+        "software_version": __version__,
+    }
     return tuning
+
+
+#: What the recorded colour gains are for, in the exported file itself.
+COLOUR_GAINS_USE = (
+    "red and blue gains that make the calibration's white neutral through this file: rpicam-apps --awbgains R,B, "
+    "Picamera2 ColourGains (R, B); libcamera ignores this entry"
+)
+
+
+def neutral_colour_gains(calibration: Calibration, tuning: dict[str, Any]) -> tuple[float, float]:
+    """The colour gains (red, blue) that make the calibration's white neutral through a tuning file's lens shading.
+
+    libcamera's ``ColourGains`` (rpicam-apps ``--awbgains R,B``): the white's mean red, green and blue over the
+    whole frame after the per-pixel gains the ISP applies with this file's static ``rpi.alsc`` tables
+    (:func:`picamcal.export.isp.channel_tables`, interpolated as the IPA and the hardware do, averaged over each of
+    the calibration's bins), then green / red and green / blue. libcamera scales each target's colour tables to 1
+    at their smallest cell, so the vc4 and pisp files of one calibration need different gains.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> neutral_colour_gains(cal, export_tuning(cal, load_tuning(stock_tuning_path("imx219", "bcm2835"))))
+    (1.2507, 1.0018)
+    """
+    target = check_tuning(tuning)
+    width, height, size = calibration.width, calibration.height, calibration.bin_size
+    tables = channel_tables(tuning, SensorMode.full(width, height))
+    py, px = table_to_pixels(target, width, height)
+    fy, fx = _bin_average(height, size) @ py, _bin_average(width, size) @ px
+    binned = np.stack([fy @ table @ fx.T for table in tables], axis=-1)
+    red, green, blue = (binned * calibration.white).reshape(-1, 3).mean(axis=0)
+    return round(float(green / red), 4), round(float(green / blue), 4)
 
 
 def _rounded(table: np.ndarray) -> list[float]:

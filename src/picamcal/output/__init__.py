@@ -5,8 +5,8 @@ white reference is 1.0) in one of :data:`OUTPUT_FORMATS`, atomically, with its p
 file has its module:
 
 :mod:`picamcal.output.tiff`
-    ``float32-tiff`` (the values as they are) and ``uint16-tiff`` (an ImageJ hyperstack, the white
-    reference at :data:`UINT16_WHITE`).
+    ``float32-tiff`` (the values as they are) and ``uint16-tiff`` (the white reference at
+    :data:`UINT16_WHITE`), each one interleaved RGB image.
 :mod:`picamcal.output.srgb`
     ``srgb-png``, ``srgb-png16`` and ``srgb-jpeg``: colour-managed through a colour matrix
     (:mod:`picamcal.output.colour`: :func:`camera_to_srgb`, :func:`encode_srgb`), with an sRGB ICC profile.

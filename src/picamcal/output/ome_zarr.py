@@ -149,9 +149,7 @@ class ZarrStack:
             if self.resuming:
                 self.group = zarr.open_group(self.path, mode="r+")
                 remove_stale_temporaries(self.path.parent)
-                if not has_live_temporary(self.path, _WRITING):  # no run writes here: a killed one left these
-                    for partial in self.path.rglob("*.partial"):
-                        partial.unlink(missing_ok=True)
+                self.remove_partials()
             else:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
                 self.group = zarr.open_group(self.path, mode="w", zarr_format=3)
@@ -174,6 +172,17 @@ class ZarrStack:
         except OSError as exc:
             raise OutputError(f"cannot write here: {exc.strerror or exc}", self.path) from exc
         self.marker = make_temporary(self.path, suffix=_WRITING)
+
+    def unused(self) -> bool:
+        """Whether no run writes the stack now (none holds its marker) and none of its frames is done."""
+        return not self.done and not has_live_temporary(self.path, _WRITING)
+
+    def remove_partials(self) -> None:
+        """Remove zarr's chunk temporaries (``*.partial``) if no run writes the stack (none holds its marker): a
+        killed run, or an interrupted one's killed workers, left them."""
+        if not has_live_temporary(self.path, _WRITING):
+            for partial in self.path.rglob("*.partial"):
+                partial.unlink(missing_ok=True)
 
     def release(self) -> None:
         """Say that this run no longer writes the stack."""

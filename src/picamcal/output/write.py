@@ -62,8 +62,8 @@ def write_corrected(
     path : path-like
         The file to write (its suffix is not checked: :data:`OUTPUT_SUFFIXES` has the usual ones).
     rgb : ndarray (H, W, 3)
-        Corrected linear RGB, the white reference at 1.0; for ``uint16-tiff`` also its codes, planar (3, H, W)
-        uint16, as ``picamcal.correct(..., dtype=np.uint16)`` gives them (written as they are).
+        Corrected linear RGB, the white reference at 1.0; for ``uint16-tiff`` also its codes, uint16 (H, W, 3),
+        as ``picamcal.correct(..., dtype=np.uint16)`` gives them (written as they are).
     output_format : str
         One of :data:`OUTPUT_FORMATS`.
     metadata : mapping, optional

@@ -15,8 +15,8 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..errors import PicamcalWarning, RawFormatError
-from ..sensors import find_sensor_name
+from ..errors import PicamcalError, PicamcalWarning, RawFormatError
+from ..sensors import SENSORS, given_sensor, or_list, sensors_of_size
 from .brcm import is_brcm, is_jpeg, read_brcm, write_brcm
 from .dng import GainMap, flat_field_gain_map, is_dng, read_dng, read_gain_map, write_dng, write_linear_dng
 from .headless import HEADLESS_SUFFIXES, headless_hint, read_headless
@@ -120,9 +120,14 @@ def read_raw(
         With ``raw_format``: which frame of a dump of several frames (default 0, the first);
         ``metadata["frames"]`` gives how many there are.
     sensor : str, optional
-        The sensor, for files that do not say (a headless dump, a picamera2 buffer without a model): a registry
-        sensor gives the black level when the file has none; another name is kept as given, with
-        ``metadata["sensor_known"]`` false. A file that names its sensor keeps its own.
+        The sensor, for files that do not say (picamera2's DNGs, a headless dump, a picamera2 buffer without a
+        model), checked by :func:`picamcal.sensors.given_sensor` (a near miss of a registry name is refused): a
+        registry sensor gives the black level when the file has none; another name is kept as given, with
+        ``metadata["sensor_known"]`` false. A file that names its sensor keeps its own. Without it, a file that
+        does not name its sensor is taken as the one registry sensor of its frame size
+        (:func:`picamcal.sensors.sensors_of_size`), with a ``PicamcalWarning`` saying so and
+        ``metadata["sensor_source"]`` ``"size"``; a size several sensors share is not guessed: the warning lists
+        them, and so does ``metadata["sensor_candidates"]``.
     verify : bool
         Check the declared metadata against the data and warn.
     expected_shape : (height, width), optional
@@ -163,8 +168,11 @@ def read_raw(
     (1, None, nan)
     """
     path = Path(path)
-    if sensor is not None and not isinstance(sensor, str):
-        raise RawFormatError(f"the sensor is a name such as 'imx219', not {sensor!r:.40}", path)
+    if sensor is not None:
+        try:
+            sensor = given_sensor(sensor, warn=False)  # the command line warned once of a sensor outside the registry
+        except PicamcalError as exc:
+            raise RawFormatError(exc.problem, path) from None
     if raw_format is not None:
         raw = read_headless(
             path,
@@ -191,6 +199,8 @@ def read_raw(
             raw = _with_sensor(raw, sensor)
         if pattern is not None or black_level is not None:
             raw = override(raw, pattern=pattern, black_level=black_level)
+    if raw.sensor is None:
+        raw = _by_size(raw)
     if verify:
         for problem in check_metadata(raw):
             warnings.warn(f"{path}: {problem}", PicamcalWarning, stacklevel=2)
@@ -199,13 +209,41 @@ def read_raw(
 
 def _with_sensor(raw: RawImage, sensor: str) -> RawImage:
     """``raw`` with the sensor its file does not name, and that sensor's black level if the file has none."""
-    name = find_sensor_name(sensor)
+    name = sensor if sensor in SENSORS else None
     require_colour_sensor(name, raw.source)
     meta = {**raw.metadata, "sensor_known": name is not None}
     black = raw.black_level
     if name is not None and not all(math.isfinite(b) for b in black):
         black, meta["black_level_source"] = sensor_black_level(name, raw.bit_depth)
     return dataclasses.replace(raw, sensor=name or sensor, black_level=black, metadata=meta)
+
+
+def _by_size(raw: RawImage) -> RawImage:
+    """``raw``, which names no sensor, as the one registry sensor of its size (said in a warning); for a size several
+    sensors share, with them in ``metadata["sensor_candidates"]`` and the warning asking for ``--sensor``.
+
+    The warning does not name the file: every frame of a folder or a batch gives the same one, shown once.
+    """
+    names = sensors_of_size(raw.width, raw.height)
+    size = f"{raw.width}x{raw.height}"
+    if len(names) == 1:
+        warnings.warn(
+            f"frames of {size} that do not name their sensor are taken as the {names[0]}, the one sensor of that "
+            "size (give --sensor if it is another)",
+            PicamcalWarning,
+            stacklevel=3,
+        )
+        raw = _with_sensor(raw, names[0])
+        raw.metadata["sensor_source"] = "size"
+    elif names:
+        warnings.warn(
+            f"frames of {size} that do not name their sensor could be from the {or_list(names)}: give --sensor "
+            "NAME to say which",
+            PicamcalWarning,
+            stacklevel=3,
+        )
+        raw = dataclasses.replace(raw, metadata={**raw.metadata, "sensor_candidates": list(names)})
+    return raw
 
 
 def _read_by_signature(path: Path, head: bytes, expected_shape: tuple[int, int] | None) -> RawImage:
@@ -219,7 +257,9 @@ def _read_by_signature(path: Path, head: bytes, expected_shape: tuple[int, int] 
         return read_picamera2_npy(path, expected_shape=expected_shape)
     for signature, what in _SIGNATURES.items():
         if head.startswith(signature):
-            raise RawFormatError(f"{what}, not a raw image (a processed image? use --processed)", path)
+            from .processed import NOT_RAW  # only here: the readers of processed images are not needed to read raw
+
+            raise RawFormatError(f"{what}, {NOT_RAW}", path)
     raise RawFormatError(
         "not a raw image format picamcal reads (DNG, JPEG+raw, picamera2 .npy or picamcal .npz)" + headless_hint(path),
         path,

@@ -292,11 +292,9 @@ def _diagnose(f: BinaryIO, size: int, head: bytes, path: Path) -> RawFormatError
     if is_jpeg(head):
         f.seek(max(0, size - 2))
         ending = "" if f.read(2) == b"\xff\xd9" else " (nor does it end with a JPEG end marker: truncated?)"
-        return RawFormatError(
-            f"a JPEG image with no raw (BRCM) block{ending}: a processed image? correct it with --processed "
-            "(or capture raw with --raw / bayer=True)",
-            path,
-        )
+        from .processed import NOT_RAW  # only here: the readers of processed images are not needed to read raw
+
+        return RawFormatError(f"a JPEG image with no raw (BRCM) block{ending}, {NOT_RAW}", path)
     return RawFormatError("not a legacy raw file: neither a JPEG nor a BRCM raw block", path)
 
 

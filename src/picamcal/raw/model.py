@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import RawFormatError
-from ..sensors import black_level_at, get_sensor
+from ..sensors import SENSORS, black_level_at, get_sensor, or_list
 
 PATTERNS = ("RGGB", "GBRG", "BGGR", "GRBG")
 CHANNELS = "RGB"
@@ -73,18 +73,37 @@ def site_channels(pattern: str) -> np.ndarray:
 def require_black_level(raw: RawImage) -> None:
     """Raise if ``raw``'s black level is unknown (NaN): the file records none and its sensor is not known.
 
-    Never take 0 silently: a wrong black level skews every ratio the calibration measures.
+    Never take 0 silently: a wrong black level skews every ratio the calibration measures. The message says what
+    can give it: a sensor outside the registry (``--sensor imx298``) has no known level, so only ``--black-level`` or
+    a dark frame; a frame whose size several registry sensors share names them.
 
     Examples
     --------
     >>> require_black_level(RawImage(np.zeros((2, 2), np.uint16), "RGGB", 64, 1023, 10))
+    >>> require_black_level(RawImage(np.zeros((2, 2), np.uint16), "RGGB", float("nan"), 1023, 10, "imx298"))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.RawFormatError: <array>: no black level: the file records none, and picamcal does not know ...
     """
-    if not np.all(np.isfinite(raw.black_level)):
-        raise RawFormatError(
-            "no black level: the file records none and its sensor is not in picamcal's registry; give "
-            "--black-level N, a dark frame (--black FILE) or --sensor NAME",
-            raw.source,
+    if np.all(np.isfinite(raw.black_level)):
+        return
+    candidates = raw.metadata.get("sensor_candidates")
+    if raw.sensor is not None and raw.sensor not in SENSORS:
+        problem = (
+            f"no black level: the file records none, and picamcal does not know the black level of the {raw.sensor}, "
+            "a sensor outside its registry; give --black-level N or a dark frame (--black FILE)"
         )
+    elif raw.sensor is None and candidates:
+        problem = (
+            f"no black level: the file records none, and a {raw.width}x{raw.height} frame could be from the "
+            f"{or_list(candidates)}; give --sensor NAME (one of them), --black-level N or a dark frame (--black FILE)"
+        )
+    else:
+        problem = (
+            "no black level: the file records none and its sensor is not in picamcal's registry; give "
+            "--black-level N, a dark frame (--black FILE) or --sensor NAME"
+        )
+    raise RawFormatError(problem, raw.source)
 
 
 @dataclass
@@ -105,7 +124,9 @@ class RawImage:
     bit_depth : int
         Bits per pixel of the sensor's output.
     sensor : str or None
-        Sensor name from the registry, when the file says.
+        Sensor name from the registry, when the file says, or the one registry sensor of the frame's size
+        (``metadata["sensor_source"]`` is then ``"size"``; a size several share puts them in
+        ``metadata["sensor_candidates"]``); a sensor the user names that the registry does not hold, as given.
     metadata : dict
         Exposure, gains and whatever else the file records; ``metadata["format"]`` names the format read.
     """

@@ -31,10 +31,18 @@ from typing import Any
 
 import numpy as np
 
-from .._json import Fields, parse_json, read_json
+from .._json import Fields, parse_json, read_libcamera_yaml
 from ..errors import PicamcalError, RawFormatError, closest
 from ..limits import check_size
 from .npy import file_head
+
+#: What follows the name of a processed image (or any file that is no raw frame) given where a raw frame is needed:
+#: the one wording for every command that can meet one, which fits each of them (calibrate has no --processed,
+#: correct has).
+NOT_RAW = (
+    "not a raw image (DNG, JPEG+raw from raspistill --raw or picamera bayer=True, picamera2 .npy, a headless dump): "
+    "a calibration cannot be made from processed images; correct takes them with --processed"
+)
 
 
 @dataclass
@@ -79,8 +87,8 @@ def tuning_gamma_curve(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.nda
     Raises
     ------
     RawFormatError
-        Not a regular file, not JSON, no ``rpi.contrast`` ``gamma_curve``, or one that is not increasing pairs of
-        numbers in 0..65535.
+        Not a regular file, not what libcamera's YAML parser reads, no ``rpi.contrast`` ``gamma_curve``, or one
+        that is not increasing pairs of numbers in 0..65535.
 
     Examples
     --------
@@ -90,7 +98,7 @@ def tuning_gamma_curve(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.nda
     (0.0, 1.0, True)
     """
     path = Path(path)
-    tuning = read_json(path, RawFormatError, "a JSON tuning file")
+    tuning = read_libcamera_yaml(path, RawFormatError, "a libcamera tuning file")  # as libcamera parses it
     fields = Fields(path, RawFormatError, "a tuning file with a gamma curve")
     algorithms = fields.items(fields.mapping(tuning, "the file", ("algorithms",))["algorithms"], "'algorithms'")
     sections = [a["rpi.contrast"] for a in algorithms if isinstance(a, dict) and "rpi.contrast" in a]
@@ -298,8 +306,9 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     encoding : str
         How the values were encoded: ``srgb`` (default), ``linear``, ``gamma:G``, ``tuning:FILE``. A float32
         TIFF that picamcal wrote (``apply-tuning``, ``correct``) says it is linear RGB, and is read as such
-        whatever the encoding; its record is kept as ``metadata["picamcal"]`` (and its ``colour_gains``, if it
-        has them, as the image's: see :func:`picamcal.export.isp.processed_inputs`).
+        whatever the encoding, as is a ``uint16-tiff`` (``code / scale``, its record's scale); its record is kept
+        as ``metadata["picamcal"]`` (and its ``colour_gains``, if it has them, as the image's: see
+        :func:`picamcal.export.isp.processed_inputs`).
 
     Examples
     --------
@@ -342,10 +351,13 @@ def read_processed(path: str | os.PathLike[str], encoding: str = "srgb") -> Proc
     if bits == 32 and not np.all(np.isfinite(data)):
         count = int(np.count_nonzero(~np.isfinite(data)))
         raise RawFormatError(f"holds {count} NaN or infinite samples: not an image picamcal can correct", path)
-    if bits == 32 and "picamcal" in meta:
+    # picamcal's uint16-tiff: linear, value = code / scale (its record says so), the white reference at the scale.
+    scale = meta.get("picamcal", {}).get("scale") if bits == 16 else None
+    scale = float(scale) if isinstance(scale, (int, float)) and not isinstance(scale, bool) and scale > 0 else None
+    if (bits == 32 and "picamcal" in meta) or scale is not None:
         # picamcal writes float samples only as linear RGB: undoing a tone curve that was never applied would bend
         # every value (corner CIEDE2000 of 5 to 8 for apply-tuning's output read with the tuning's curve).
         encoding = "linear"
-    values = data.astype(np.float32) if bits == 32 else data.astype(np.float32) / float((1 << bits) - 1)
+    values = data.astype(np.float32) if bits == 32 else data.astype(np.float32) / (scale or float((1 << bits) - 1))
     meta["encoding"] = encoding
     return ProcessedImage(linearise(values, encoding), encoding, bits, meta)

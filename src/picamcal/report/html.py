@@ -181,26 +181,47 @@ def _test_image_section(
 
 
 def _verdict_html(verdict: Mapping[str, Any]) -> str:
-    """The verdict on a test image, its thresholds, and what the workflows that could have made the calibration
-    reach on the spectral simulator."""
-    expected = verdict["expected"]
+    """The verdict on a test image, its thresholds, and what to try when it does worse than its workflow."""
+    advice = f"<p class='note'>{_esc(verdict['advice'])}.</p>" if verdict["advice"] else ""
+    return (
+        f"<p>Verdict: <span class='{_esc(verdict['verdict'])}'>{_esc(verdict['verdict'])}</span>: corner CIEDE2000 "
+        f"mean {verdict['mean_delta_e']:.2f}, max {verdict['max_delta_e']:.2f} in the {_esc(verdict['mode'])} mode "
+        f"(the expected accuracy is above). Thresholds: {_esc(verdict['thresholds'])}.</p>{advice}"
+    )
+
+
+def _expected_html(cal: Calibration) -> str:
+    """What the workflows that could have made the calibration reach on the spectral simulator: those of the light
+    it records, or of every light when it records none."""
+    from ..analysis.verdicts import expected_accuracy
+    from ..calibration import LIGHTS
+
+    expected = expected_accuracy(cal)
     conditions = expected["conditions"]
+    light = expected["light"]
+    if expected["kind"] not in ("full", "least-squares"):
+        which = f"What this kind of calibration ({_esc(expected['kind'])}) reaches"
+    elif light is not None:
+        which = f"Light: {_esc(light)} ({_esc(LIGHTS[light])}), as the calibration records it. What it reaches"
+    else:
+        which = (
+            "Unknown light: expected accuracy of each workflow (the calibration does not record its light: "
+            "<code>picamcal calibrate --light jig|screen|sheets</code> does, and calibrating the folder of "
+            "<code>picamcal acquire</code> reads it from the manifest). What each reaches"
+        )
     rows = "".join(
         f"<tr><td>{_esc(w['name'])}</td><td>{_esc(w['calibration'])}</td><td>{_esc(w['target'])}</td>"
         f"<td>{_esc(w['lens'])}</td><td class='num'>{w['mean_delta_e']:.2f}</td>"
         f"<td class='num'>{w['max_delta_e']:.2f}</td><td class='num'>{w['floor_mean_delta_e']:.2f}</td></tr>"
         for w in expected["workflows"]
     )
-    advice = f"<p class='note'>{_esc(verdict['advice'])}.</p>" if verdict["advice"] else ""
     return (
-        f"<p>Verdict: <span class='{_esc(verdict['verdict'])}'>{_esc(verdict['verdict'])}</span>: corner CIEDE2000 "
-        f"mean {verdict['mean_delta_e']:.2f}, max {verdict['max_delta_e']:.2f} in the {_esc(verdict['mode'])} mode. "
-        f"Thresholds: {_esc(verdict['thresholds'])}.</p>{advice}"
-        f"<p>What this kind of calibration ({_esc(expected['kind'])}) reaches on the spectral simulator "
-        f"({_esc(conditions['sensor'])} at {conditions['size'][0]} x {conditions['size'][1]}, with noise; "
-        "docs/accuracy.md), in the same mode, with the floor: the best any per-bin 3 x 3 reaches on that target.</p>"
-        "<table><tr><th>workflow</th><th>calibration</th><th>target</th><th>lens</th><th>mean</th><th>max</th>"
-        f"<th>floor (mean)</th></tr>{rows}</table>"
+        f"<h2>Expected accuracy</h2><p>{which} on the spectral simulator ({_esc(conditions['sensor'])} at "
+        f"{conditions['size'][0]} x {conditions['size'][1]}, with noise; docs/accuracy.md): corner-vs-centre "
+        f"CIEDE2000 of the colour-wheel target in the {_esc(expected['mode'])} mode, with the floor, the best any "
+        "per-bin 3 x 3 reaches on that target. Test images (<code>picamcal report --test</code>) are scored the same "
+        "way.</p><table><tr><th>workflow</th><th>calibration</th><th>target</th><th>lens</th><th>mean</th>"
+        f"<th>max</th><th>floor (mean)</th></tr>{rows}</table>"
     )
 
 
@@ -346,6 +367,7 @@ colour correction for the Raspberry Pi camera module</i>. Bayer order {_esc(cal.
 <table><tr><th>role</th><th>file</th><th>format</th><th>median exposure</th><th>clipped</th>
 <th>sha256, or frames averaged</th></tr>
 {inputs}</table>
+{_expected_html(cal)}
 <h2>Diagnostics</h2>
 {figure_html}
 {test_html}

@@ -361,6 +361,8 @@ def read_dng(path: str | os.PathLike[str], *, expected_shape: Sequence[int] | No
                 raise RawFormatError("a TIFF file but not a DNG raw image (no DNGVersion tag)", path)
             ifd, layout = raw_layout(tiff, ifd0)
             meta = _tag_metadata(tiff, ifd0, problems)
+            # Without the tag the level is the DNG default, 0, whatever the sensor's: check_metadata weighs it.
+            meta["black_level_source"] = "file" if BLACK_LEVEL in ifd else "DNG default"
             found = read_strips(tiff, layout, expected_shape) if is_plain(tiff, ifd, layout) else None
     except OSError as exc:
         raise RawFormatError(f"cannot read: {exc.strerror or exc}", path) from exc

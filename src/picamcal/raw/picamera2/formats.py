@@ -128,4 +128,15 @@ def _nearest_format(key: str) -> str:
     if match := re.fullmatch(rf"S{_ORDER}(10|12|14)P", key):  # V4L2's name of a packed format
         return f"; did you mean S{match[1]}{match[2]}_CSI2P?"
     near = closest(key, RAW_FORMATS, cutoff=0.75)
-    return f"; did you mean {near}?" if near else ""
+    if near is None:
+        return ""
+    order = next(o for o in PATTERNS if o in near)
+    given = [o for o in PATTERNS if o in key]
+    if len(given) == 1:  # the name says its Bayer order: the nearest format of that order
+        return f"; did you mean {closest(key, [f for f in RAW_FORMATS if given[0] in f], cutoff=0) or near}?"
+    # No order, or a misspelt one: the order is the data's, and guessing it would swap colours without a word.
+    names = sorted(near.replace(order, o, 1) for o in PATTERNS)
+    return (
+        f"; did you mean {', '.join(names[:-1])} or {names[-1]}: the Bayer order is part of the format (rpicam-raw "
+        "prints it: 'format NAME')"
+    )

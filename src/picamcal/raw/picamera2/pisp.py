@@ -1,4 +1,5 @@
-"""The Pi 5's lossy raw compression, ``<order>_PISP_COMP1``: decoding only (picamcal never writes it).
+"""The Pi 5's lossy raw compression, ``<order>_PISP_COMP1``: decoding, and encoding for the virtual camera
+(:mod:`picamcal.virtualcam`; picamcal never writes it to files).
 
 Following the Linux kernel's description ("Raspberry Pi PiSP compressed 8-bit Bayer formats",
 ``V4L2_PIX_FMT_PISP_COMP1_*``) and rpicam-apps' ``image/dng.cpp`` decoder: each 8-byte block holds 8 pixels as two
@@ -11,6 +12,8 @@ neighbour. libcamera compresses with an offset of 2048 (mode 1), added back with
 from __future__ import annotations
 
 import functools
+import sys
+from typing import Any
 
 import numpy as np
 
@@ -91,3 +94,172 @@ def pisp_decompress(rows: np.ndarray, width: int, bits: int = 16) -> np.ndarray:
     for k in range(4):
         out[:, :, k, :] = levels[q[k]]
     return out.reshape(height, blocks * 8)[:, :width]
+
+
+def pisp_compress(
+    mosaic: np.ndarray, stride: int | None = None, *, shift: int = 0, out: np.ndarray | None = None
+) -> np.ndarray:
+    """Encode a 16-bit mosaic in PiSP compression mode 1, as the Pi 5's front end writes the raw stream; the inverse
+    of :func:`pisp_decompress` up to its quantisation.
+
+    libcamera's offset of 2048 is subtracted (saturating at 0); each word (4 samples of one phase of an 8-pixel
+    block) takes the finest quantisation mode (0, 1, then 2) that codes its samples without clamping, else mode 2
+    with the samples clamped to what it can code. The "escape" mode 3 is not used (the decoder reads it; the
+    hardware's choice between the modes is not published). Rows are zero padded to ``stride`` bytes (default: the
+    width rounded up to 8).
+
+    Parameters
+    ----------
+    mosaic : ndarray of uint16, shape (H, W)
+    stride : int, optional
+    shift : int
+        Bits to shift the samples left first (a mosaic at ``16 - shift`` bits).
+    out : ndarray of uint8, shape (H, stride), optional
+        Where to write the rows (returned); a new array if not given.
+
+    Examples
+    --------
+    >>> mosaic = np.array([[4352, 4352, 8448, 8448, 8448, 8448, 4352, 4352]], dtype=np.uint16)
+    >>> rows = pisp_compress(mosaic)
+    >>> rows.shape, pisp_decompress(rows, 8).tolist() == mosaic.tolist()
+    ((1, 8), True)
+    >>> pisp_compress(mosaic >> 4, shift=4).tolist() == rows.tolist()
+    True
+    """
+    height, width = mosaic.shape
+    blocks = -(-width // 8)
+    stride = (blocks * 8 if stride is None else stride) if out is None else out.shape[1]
+    if stride < blocks * 8:
+        raise ValueError(f"stride {stride} is shorter than the {blocks * 8} bytes of a compressed row")
+    if out is None:
+        out = np.zeros((height, stride), dtype=np.uint8)
+    else:
+        out[:, blocks * 8 :] = 0
+    kernel = _compiled_words()
+    if kernel is not None and sys.byteorder == "little" and stride % 4 == 0 and out.flags.c_contiguous:
+        kernel(mosaic, shift, blocks, out.view(np.uint32))  # the words written in place, in memory order
+        return out
+    chunk = max(1, (1 << 16) // blocks)  # rows at a time, so that the temporaries stay in the cache
+    for top in range(0, height, chunk):
+        rows = mosaic[top : top + chunk]
+        words = _pisp_words(rows, width, blocks, shift)
+        out[top : top + len(rows), : blocks * 8] = words.reshape(len(rows), blocks * 2).astype("<u4").view(np.uint8)
+    return out
+
+
+def _quantise(x: int, mode: int) -> int:  # pragma: no cover - compiled by numba
+    """A sample's level in a quantisation mode (rounded to the nearest)."""
+    if mode == 0:
+        return (x + 8) >> 4 if x < 5112 else ((x + 16) >> 5) + 160
+    return (x + 32) >> 6 if mode == 1 else (x + 64) >> 7
+
+
+def _word(x0: int, x1: int, x2: int, x3: int) -> int:  # pragma: no cover - compiled by numba
+    """One word of :func:`_pisp_words`: the same choice of mode, the same clamping."""
+    for mode in range(2):
+        q0, q1, q2, q3 = _quantise(x0, mode), _quantise(x1, mode), _quantise(x2, mode), _quantise(x3, mode)
+        field0, diff = min(q1, q2), q2 - q1
+        base0, base3 = max(q1 - 64, 0), max(q2 - 64, 0)
+        if field0 <= 511 and -64 <= diff <= 63 and base0 <= q0 <= base0 + 127 and base3 <= q3 <= base3 + 127:
+            return mode | field0 << 2 | (diff + 64) << 11 | (q0 - base0) << 18 | (q3 - base3) << 25
+    q0, q1 = min(_quantise(x0, 2), 511), min(_quantise(x1, 2), 511)
+    q2, q3 = min(_quantise(x2, 2), 511), min(_quantise(x3, 2), 511)
+    high = q1 >= 384 and q2 >= 384
+    if not high:
+        q2 = min(max(q2, q1 - 64), q1 + 63)
+        if min(q1, q2) > 383:
+            q1 = min(q1, 383 + max(q1 - q2, 0))
+            q2 = min(max(q2, q1 - 64), min(q1 + 63, 383 + max(q2 - q1, 0)))
+    field0 = q1 if high else min(q1, q2)
+    diff = q2 - 448 if high else q2 - q1
+    base0, base3 = min(max(q1 - 64, 0), 384), min(max(q2 - 64, 0), 384)
+    q0, q3 = min(max(q0, base0), base0 + 127), min(max(q3, base3), base3 + 127)
+    return 2 | field0 << 2 | (diff + 64) << 11 | (q0 - base0) << 18 | (q3 - base3) << 25
+
+
+def _sample(mosaic: np.ndarray, r: int, i: int, shift: int) -> int:  # pragma: no cover - compiled by numba
+    """Sample ``i`` of row ``r`` shifted, less the offset (saturating at 0); 0 past the row's end."""
+    return max((int(mosaic[r, i]) << shift) - _PISP_OFFSET, 0) if i < mosaic.shape[1] else 0
+
+
+def _word_loop(  # pragma: no cover - compiled by numba
+    mosaic: np.ndarray, shift: int, blocks: int, words: np.ndarray
+) -> None:
+    """:func:`_pisp_words` word by word (for numba): ``words`` the rows as 32-bit words, in memory order."""
+    for r in range(mosaic.shape[0]):
+        for block in range(blocks):
+            for phase in range(2):
+                i = 8 * block + phase
+                x0, x1 = _sample(mosaic, r, i, shift), _sample(mosaic, r, i + 2, shift)
+                x2, x3 = _sample(mosaic, r, i + 4, shift), _sample(mosaic, r, i + 6, shift)
+                words[r, 2 * block + phase] = _word(x0, x1, x2, x3)
+
+
+@functools.cache
+def _compiled_words() -> Any:
+    """:func:`_word_loop` compiled by numba (cached on disk), or None where numba is not installed."""
+    global _quantise, _sample, _word
+    try:
+        import numba
+    except ImportError:
+        return None
+    # The helpers become compiled module globals, which the compiled loop calls (and numba caches by name).
+    _quantise = numba.njit(cache=True, inline="always")(getattr(_quantise, "py_func", _quantise))
+    _sample = numba.njit(cache=True, inline="always")(getattr(_sample, "py_func", _sample))
+    _word = numba.njit(cache=True)(getattr(_word, "py_func", _word))
+    return numba.njit(cache=True, nogil=True)(_word_loop)
+
+
+def _pisp_words(mosaic: np.ndarray, width: int, blocks: int, shift: int = 0) -> np.ndarray:
+    """The compressed words of some rows, (rows, blocks, phase), for :func:`pisp_compress`."""
+    padded = np.zeros((mosaic.shape[0], blocks * 8), dtype=np.int32)
+    padded[:, :width] = mosaic
+    padded <<= shift
+    np.subtract(padded, _PISP_OFFSET, out=padded)
+    np.maximum(padded, 0, out=padded)
+    x = padded.reshape(mosaic.shape[0], blocks, 4, 2)  # (.., k, phase): sample k of the word of each phase
+    words = np.zeros((mosaic.shape[0], blocks, 2), dtype=np.uint32)
+    todo = np.ones(words.shape, dtype=bool)
+    largest = int(padded.max(initial=0))
+    for mode in (0, 1, 2):
+        if mode < 2 and int(padded.min(initial=0)) >= (5112 if mode == 0 else 32704):
+            continue  # no sample is small enough for this mode's range
+        if mode == 0:  # steps of 16 up to level 320, then 32 (level q >= 320 decodes to 32 * (q - 160))
+            q = np.where(x < 5112, (x + 8) >> 4, ((x + 16) >> 5) + 160)
+        else:
+            shift = 6 if mode == 1 else 7
+            q = (x + np.int32(1 << (shift - 1))) >> shift
+        q0, q1, q2, q3 = q[:, :, 0], q[:, :, 1], q[:, :, 2], q[:, :, 3]
+        last = mode == 2
+        if last:  # clamp to what mode 2 codes
+            q0, q1, q2, q3 = (np.minimum(v, 511) for v in (q0, q1, q2, q3))
+            high = (q1 >= 384) & (q2 >= 384)
+            q2 = np.where(high, q2, np.clip(q2, q1 - 64, q1 + 63))
+            low = ~high & (np.minimum(q1, q2) > 383)
+            q1 = np.where(low, np.minimum(q1, 383 + np.maximum(q1 - q2, 0)), q1)
+            q2 = np.where(low, np.clip(q2, q1 - 64, np.minimum(q1 + 63, 383 + np.maximum(q2 - q1, 0))), q2)
+            field0 = np.where(high, q1, np.minimum(q1, q2))
+            diff = np.where(high, q2 - 448, q2 - q1)
+            base0 = np.minimum(np.maximum(q1 - 64, 0), 384)
+            base3 = np.minimum(np.maximum(q2 - 64, 0), 384)
+            q0, q3 = np.clip(q0, base0, base0 + 127), np.clip(q3, base3, base3 + 127)
+            fits = todo
+        else:
+            field0 = np.minimum(q1, q2)
+            diff = q2 - q1
+            base0, base3 = np.maximum(q1 - 64, 0), np.maximum(q2 - 64, 0)
+            fits = todo & (field0 <= 511) & (diff >= -64) & (diff <= 63)
+            fits &= (q0 >= base0) & (q0 <= base0 + 127) & (q3 >= base3) & (q3 <= base3 + 127)
+        word = (
+            np.uint32(mode)
+            | field0.astype(np.uint32) << 2
+            | (diff + 64).astype(np.uint32) << 11
+            | (q0 - base0).astype(np.uint32) << 18
+            | (q3 - base3).astype(np.uint32) << 25
+        )
+        np.copyto(words, word, where=fits)
+        todo &= ~fits
+        if not todo.any():
+            break
+    del largest
+    return words
