@@ -99,8 +99,35 @@ def _spline(centres: np.ndarray, values: np.ndarray, axis: int) -> tuple[np.ndar
         system[0, :3] = a, -a - b, b
         a, b = 1 / (knots[-1] - knots[-_K - 3]), 1 / (knots[-1] - knots[-_K - 2])
         system[-1, -3:] = a, -a - b, b
-    coefficients = np.linalg.solve(system, rhs.reshape(size, -1)).reshape(rhs.shape)
+    coefficients = _solve_banded(system, rhs.reshape(size, -1)).reshape(rhs.shape)
     return knots, np.moveaxis(coefficients, 0, axis)
+
+
+def _solve_banded(system: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``solve(system, rhs)`` for a banded system (a B-spline collocation matrix: at most 4 entries a row), by
+    Gaussian elimination within the band.
+
+    Without pivoting, which a collocation matrix does not need (it is totally positive, de Boor); its natural ends'
+    rows keep positive pivots. A few milliseconds where a dense solve took tens, and no BLAS threads, which slow to a
+    crawl when another thread of the command keeps a core busy (the kernel's warm-up).
+    """
+    a, b = system.copy(), rhs.astype(np.float64, copy=True)
+    size = a.shape[0]
+    rows, cols = np.nonzero(a)
+    lower, upper = int(np.max(rows - cols, initial=0)), int(np.max(cols - rows, initial=0))
+    for k in range(size):
+        pivot = a[k, k]
+        if abs(pivot) < 1e-12 * np.abs(a[k]).max(initial=0.0):  # not a collocation matrix after all
+            return np.linalg.solve(system, rhs)
+        end = min(size, k + upper + 1)
+        for i in range(k + 1, min(size, k + lower + 1)):
+            if factor := a[i, k] / pivot:
+                a[i, k:end] -= factor * a[k, k:end]
+                b[i] -= factor * b[k]
+    for k in range(size - 1, -1, -1):
+        end = min(size, k + upper + 1)
+        b[k] = (b[k] - a[k, k + 1 : end] @ b[k + 1 : end]) / a[k, k]
+    return b
 
 
 def spline_knots(centres: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -87,8 +87,6 @@ def _fit_symmetric_surface(
     yy, xx = np.meshgrid(y, x, indexing="ij")
     # A quartic has 9 terms; fewer than 4 bins per term (a frame of a few bins) gets a quadratic.
     degree = _DEGREE if plane.size >= 36 else 2
-    from scipy import optimize  # only this check searches: the other checks start without scipy
-
     level = float(np.median(plane))
     z = plane / level
     good = np.isfinite(z)
@@ -104,7 +102,7 @@ def _fit_symmetric_surface(
 
     for _ in range(3):
         mask = good.copy()
-        centre = optimize.least_squares(lambda c, m=mask: coefficients(c, m)[1], centre, x_scale=0.05 * scale).x
+        centre = _levenberg_marquardt(lambda c, m=mask: coefficients(c, m)[1], centre, 1e-6 * scale)
         coef, _ = coefficients(centre, mask)
         residual = z - _symmetric_surface(coef, y, x, centre, scale)
         sigma = _robust_std(residual[mask])
@@ -112,6 +110,38 @@ def _fit_symmetric_surface(
         if np.array_equal(good, mask):
             break
     return centre, coef * level, good
+
+
+def _levenberg_marquardt(
+    residual: Callable[[np.ndarray], np.ndarray], start: np.ndarray, tolerance: float, iterations: int = 100
+) -> np.ndarray:
+    """The parameters (a few) that minimise ``sum(residual(p)**2)``, by Levenberg-Marquardt with a forward-difference
+    Jacobian; stops when a step moves them less than ``tolerance``. numpy's, not scipy.optimize's (whose import,
+    0.3 to 0.6 s, cost every calibrate command more than the whole search)."""
+    p = np.asarray(start, dtype=np.float64)
+    r = residual(p)
+    cost, damping = float(r @ r), 1e-3
+    for _ in range(iterations):
+        steps = np.sqrt(np.finfo(np.float64).eps) * np.maximum(1.0, np.abs(p))
+        jacobian = np.stack([(residual(p + h) - r) / h[i] for i, h in enumerate(np.diag(steps))], axis=1)
+        normal, gradient = jacobian.T @ jacobian, jacobian.T @ r
+        while damping < 1e12:
+            lhs = normal + damping * np.diag(np.maximum(np.diag(normal), 1e-12))
+            try:
+                step = np.linalg.solve(lhs, -gradient)
+            except np.linalg.LinAlgError:
+                damping *= 10
+                continue
+            trial = residual(p + step)
+            if (trial_cost := float(trial @ trial)) <= cost:
+                p, r, cost, damping = p + step, trial, trial_cost, max(damping / 3, 1e-12)
+                break
+            damping *= 4
+        else:
+            return p  # no step lowers the cost: a minimum
+        if np.max(np.abs(step)) < tolerance:
+            break
+    return p
 
 
 def vignetting_centre(plane: np.ndarray, y: np.ndarray, x: np.ndarray) -> tuple[float, float]:
