@@ -3,7 +3,8 @@
 Usage: python3 benchmarks/run.py [--sensor imx219] [--repeats 5] [--only NAME ...] [--readme]
 
 It times calibration, raw reading, the matrix inversion and the wheel search itself, then runs the other
-benchmarks of this folder one after the other: start-up (bench_startup), correction (bench_correct), batches
+benchmarks of this folder one after the other: start-up (bench_startup), single commands beside their work
+(bench_commands), correction (bench_correct), batches
 file to file (bench_batch) and live unmixing (bench_live); `--only calibration startup ...` picks some. With
 `--readme` it also writes everything it printed into the README, between the markers of its "Benchmarks" section,
 so that the README's figures are those of one run. The whole run takes about 12 minutes on a 2-core machine.
@@ -159,7 +160,13 @@ def calibration_benchmarks(args: argparse.Namespace) -> None:
 
 
 #: The other benchmarks of this folder, in the order they run: name -> module (each has ``main(argv)``).
-SUITES = {"startup": "bench_startup", "correct": "bench_correct", "batch": "bench_batch", "live": "bench_live"}
+SUITES = {
+    "startup": "bench_startup",
+    "commands": "bench_commands",
+    "correct": "bench_correct",
+    "batch": "bench_batch",
+    "live": "bench_live",
+}
 README = Path(__file__).resolve().parents[1] / "README.md"
 START, END = "<!-- benchmarks/run.py --readme: start -->", "<!-- benchmarks/run.py --readme: end -->"
 
