@@ -11,6 +11,7 @@ They take plain arrays (a plane of bins and the bins' centres in sensor pixels),
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Callable, Sequence
@@ -102,7 +103,7 @@ def _fit_symmetric_surface(
 
     for _ in range(3):
         mask = good.copy()
-        centre = _levenberg_marquardt(lambda c, m=mask: coefficients(c, m)[1], centre, 1e-6 * scale)
+        centre = _levenberg_marquardt(functools.partial(_residual_of, coefficients, mask), centre, 1e-6 * scale)
         coef, _ = coefficients(centre, mask)
         residual = z - _symmetric_surface(coef, y, x, centre, scale)
         sigma = _robust_std(residual[mask])
@@ -110,6 +111,12 @@ def _fit_symmetric_surface(
         if np.array_equal(good, mask):
             break
     return centre, coef * level, good
+
+
+def _residual_of(
+    coefficients: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]], mask: np.ndarray, c: np.ndarray
+) -> np.ndarray:
+    return coefficients(c, mask)[1]
 
 
 def _levenberg_marquardt(
