@@ -7,6 +7,7 @@ them registers them on the one ``app``, in the order ``picamcal --help`` lists t
 
 # The order of these imports is the order of the commands in --help.
 from . import calibrating, exporting, inspecting, running, evaluating  # noqa: F401, I001
+from . import virtual  # noqa: F401
 from ._common import app
 from ._session import main
 

@@ -1,0 +1,504 @@
+"""The virtual camera's ISP: the raw stream's bytes as each platform writes them, and the processed streams.
+
+Raw buffers (libcamera ``pipeline/rpi/vc4/vc4.cpp`` and ``pisp/pisp.cpp`` ``platformValidate``; the layouts in
+:mod:`picamcal.raw.picamera2`):
+
+- Pi 4 (``vc4``): unpacked ``S<order><bits>`` holds the sensor's value in the low bits of a little-endian 16-bit
+  word (one byte at 8 bits); ``_CSI2P`` is MIPI CSI-2 packed (:func:`picamcal.raw.packing.pack`);
+- Pi 5 (``pisp``): ``S<order>16`` holds the value scaled to 16 bits; ``<order>_PISP_COMP1`` is that, compressed
+  (:func:`picamcal.raw.picamera2.pisp.pisp_compress`).
+
+Processed streams follow the Pi ISP's order with picamcal's emulation of the tuning file (:mod:`picamcal.export.isp`):
+black level (``rpi.black_level``), the static lens shading tables (``rpi.alsc``, at the white balance's colour
+temperature; the adaptive part of ALSC is not emulated), the colour gains and digital gain, demosaicing (each 2x2
+Bayer quad is one RGB sample, so outputs larger than half the mode are blockier than a Pi's), the crop and scaling
+to the output size (nearest sample), the colour matrix (``rpi.ccm``), the gamma curve (``rpi.contrast``) and the
+output format: RGB888 (B, G, R in memory), BGR888 (R, G, B), XRGB8888 (B, G, R, 255), XBGR8888 (R, G, B, 255),
+RGB161616/BGR161616 (the same orders, 16 bits per channel; Pi 5 only), YUV420/YVU420 (planar) and NV12/NV21, in the
+stream's colour space (full-range sYCC, limited-range SMPTE 170M or
+Rec.709).
+
+Examples
+--------
+>>> gamma = gamma_table(None)
+>>> int(gamma[0]), int(gamma[-1])
+(0, 255)
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..export.isp import SensorMode, channel_tables, table_to_pixels
+from ..raw.model import site_channels
+from ..raw.packing import pack
+from ..raw.picamera2.pisp import pisp_compress
+
+#: Y'CbCr luma coefficients (Kr, Kb) by encoding.
+_LUMA = {"Rec601": (0.299, 0.114), "Rec709": (0.2126, 0.0722), "Rec2020": (0.2627, 0.0593)}
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A configured stream's buffer: format name, size, stride and frame size in bytes."""
+
+    format: str
+    width: int
+    height: int
+    stride: int
+    frame_size: int
+
+
+def encode_raw(frame: np.ndarray, layout: Layout, bits: int, dest: np.ndarray) -> None:
+    """Write a raw frame (uint16 at ``bits`` bits) into ``dest`` (uint8, height x stride) in the layout's format.
+
+    Examples
+    --------
+    >>> frame = np.array([[100, 200, 300, 400]], dtype=np.uint16)
+    >>> dest = np.zeros((1, 32), np.uint8)
+    >>> encode_raw(frame, Layout("SRGGB10", 4, 1, 32, 32), 10, dest)
+    >>> dest[0, :8].view("<u2").tolist()
+    [100, 200, 300, 400]
+    >>> encode_raw(frame, Layout("SRGGB16", 4, 1, 32, 32), 10, dest)
+    >>> dest[0, :8].view("<u2").tolist()
+    [6400, 12800, 19200, 25600]
+    """
+    name, height, width = layout.format, layout.height, layout.width
+    if name.endswith("_PISP_COMP1"):
+        pisp_compress(frame, shift=16 - bits, out=dest)
+    elif name.endswith("_CSI2P"):
+        kernel = _compiled_pack() if bits in (10, 12) else None
+        if kernel is None:
+            dest[:] = pack(frame, bits, layout.stride)
+        else:
+            kernel(frame, bits, dest)
+    elif name.endswith("16"):
+        dest[:, : 2 * width].view("<u2")[:] = frame << (16 - bits) if bits < 16 else frame
+    elif bits == 8:
+        dest[:, :width] = frame
+    else:
+        dest[:, : 2 * width].view("<u2")[:] = frame
+    del height
+
+
+def gamma_table(curve: tuple[np.ndarray, np.ndarray] | None, size: int = 4096) -> np.ndarray:
+    """An 8-bit lookup table of ``size`` entries over linear 0..1: the tuning's gamma curve, else sRGB's."""
+    x = np.linspace(0.0, 1.0, size)
+    if curve is None:
+        y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+    else:
+        y = np.interp(x, curve[0], curve[1])
+    return np.clip(np.rint(y * 255.0), 0, 255).astype(np.uint8)
+
+
+@dataclass
+class OutputPlan:
+    """How one processed stream samples the mode: its layout, colour space and the quad indices of its pixels.
+
+    The distinct rows and columns are processed once each (an output larger than the quads repeats them).
+    """
+
+    layout: Layout
+    colour_space: Any
+    rows: np.ndarray
+    cols: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.unique_rows, self.row_index = np.unique(self.rows, return_inverse=True)
+        self.unique_cols, self.col_index = np.unique(self.cols, return_inverse=True)
+        self.repeats = len(self.unique_rows) < len(self.rows) or len(self.unique_cols) < len(self.cols)
+
+    def take(self, plane: np.ndarray) -> np.ndarray:
+        """The plane's samples at the distinct rows and columns (a copy)."""
+        rows, cols = self.unique_rows, self.unique_cols
+        if rows[-1] - rows[0] + 1 == len(rows) and cols[-1] - cols[0] + 1 == len(cols):
+            return plane[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1].copy()
+        return plane[rows][:, cols]
+
+
+def sample_indices(crop: tuple[int, int, int, int], width: int, height: int, quads: tuple[int, int]) -> tuple:
+    """Quad rows and columns (into the mode's half-size RGB) of an output of ``width`` x ``height`` showing ``crop``
+    (x, y, w, h in mode pixels), nearest sample.
+
+    Examples
+    --------
+    >>> rows, cols = sample_indices((0, 0, 8, 4), 4, 2, (4, 2))
+    >>> rows.tolist(), cols.tolist()
+    ([0, 1], [0, 1, 2, 3])
+    """
+    x, y, w, h = crop
+    qw, qh = quads
+    cols = np.floor((x + (np.arange(width) + 0.5) * w / width) / 2).astype(np.intp).clip(0, qw - 1)
+    rows = np.floor((y + (np.arange(height) + 0.5) * h / height) / 2).astype(np.intp).clip(0, qh - 1)
+    return rows, cols
+
+
+class Isp:
+    """The processing of one configured camera: lens shading tables for the mode, and the outputs' sampling.
+
+    Parameters
+    ----------
+    tuning : dict
+        The tuning file in force.
+    mode : SensorMode
+        Where the mode lies on the sensor (for the lens shading tables) and its user flips.
+    order : str
+        Bayer order of the raw frames.
+    bits : int
+        The mode's bit depth.
+    black_level : float
+        ``rpi.black_level`` on the 16-bit scale.
+    gamma : (x, y) or None
+        The tuning's gamma curve.
+    """
+
+    def __init__(
+        self,
+        tuning: dict[str, Any],
+        mode: SensorMode,
+        order: str,
+        bits: int,
+        black_level: float,
+        gamma: tuple[np.ndarray, np.ndarray] | None,
+    ) -> None:
+        self.tuning, self.mode, self.order, self.bits = tuning, mode, order, bits
+        self.black = float(black_level) * 2.0 ** (bits - 16)
+        self.white = float((1 << bits) - 1)
+        self.gamma = gamma_table(gamma)
+        self.channels = [int(c) for c in site_channels(order)]
+        self._lsc_ct: float | None = None
+        self._lsc: np.ndarray | None = None
+        self._stack: np.ndarray | None = None
+        self.has_alsc = any("rpi.alsc" in a for a in tuning.get("algorithms", []))
+
+    def lens_shading(self, ct: float) -> np.ndarray:
+        """Per-site gains at the quads (4, height / 2, width / 2), recomputed when the colour temperature moves."""
+        bucket = round(ct / 50.0) * 50.0
+        if self._lsc is not None and self._lsc_ct == bucket:
+            return self._lsc
+        mode = self.mode
+        qh, qw = mode.height // 2, mode.width // 2
+        gains = np.ones((4, qh, qw), dtype=np.float32)
+        if self.has_alsc:
+            target = self.tuning.get("target", "bcm2835")
+            tables = channel_tables(self.tuning, mode, bucket)
+            py, px = table_to_pixels(target, mode.width, mode.height)
+            for site, channel in enumerate(self.channels):
+                sy, sx = divmod(site, 2)
+                gains[site] = (py[sy::2][:qh] @ tables[channel] @ px[sx::2][:qw].T).astype(np.float32)
+        self._lsc, self._lsc_ct = gains, bucket
+        return gains
+
+    def linear_planes(self, frame: np.ndarray, ct: float) -> list[np.ndarray]:
+        """The four Bayer sites of a raw frame, black subtracted, lens shading applied, on 0..1 (quad size).
+
+        With numba the planes are views of one buffer the next call overwrites (the frame thread's use).
+        """
+        gains = self.lens_shading(ct)
+        scale = np.float32(1.0 / (self.white - self.black))
+        kernel = _compiled_planes()
+        if kernel is not None:
+            if self._stack is None or self._stack.shape != gains.shape:  # reused: fresh pages cost more than the work
+                self._stack = np.empty(gains.shape, dtype=np.float32)
+            kernel(frame, np.float32(self.black), gains, scale, self._stack)
+            return list(self._stack)
+        planes = []
+        for site in range(4):
+            sy, sx = divmod(site, 2)
+            plane = frame[sy::2, sx::2].astype(np.float32)
+            plane -= np.float32(self.black)
+            plane *= gains[site]
+            plane *= scale
+            planes.append(plane)
+        return planes
+
+    def means(self, planes: list[np.ndarray]) -> tuple[float, float, float]:
+        """The frame's mean red, green and blue (the statistics the AGC and AWB see), from a coarse grid."""
+        step = max(1, min(planes[0].shape) // 64)
+        sums = [0.0, 0.0, 0.0]
+        counts = [0, 0, 0]
+        for site, channel in enumerate(self.channels):
+            sums[channel] += float(np.clip(planes[site][::step, ::step], 0, 1).mean())
+            counts[channel] += 1
+        return (sums[0] / counts[0], sums[1] / counts[1], sums[2] / counts[2])
+
+    def render(
+        self,
+        planes: list[np.ndarray],
+        plan: OutputPlan,
+        gains: tuple[float, float],
+        digital_gain: float,
+        ccm: np.ndarray,
+        dest: np.ndarray,
+    ) -> None:
+        """Write one processed stream into ``dest`` (uint8, the buffer's bytes)."""
+        layout = plan.layout
+        weights = (np.float32(gains[0] * digital_gain), np.float32(digital_gain), np.float32(gains[1] * digital_gain))
+        green_sites = [s for s, c in enumerate(self.channels) if c == 1]
+        matrix = ccm.astype(np.float32)
+        kernels = _compiled_render()
+        if kernels is not None:
+            red, blue = self.channels.index(0), self.channels.index(2)
+            encoded = np.empty((len(plan.unique_rows), len(plan.unique_cols), 3), dtype=np.uint8)
+            kernels[0](
+                planes[red], planes[green_sites[0]], planes[green_sites[-1]], planes[blue], plan.unique_rows,
+                plan.unique_cols, np.array(weights, np.float32), matrix, self.gamma, encoded,
+            )  # fmt: skip
+            if _write_expanded(encoded, layout, plan, dest, kernels[1]):
+                return
+        else:
+            encoded = self._encode(planes, plan, weights, green_sites, matrix)
+        if plan.repeats:
+            write_output(encoded, layout, plan.colour_space, dest, (plan.row_index, plan.col_index))
+        else:
+            write_output(encoded, layout, plan.colour_space, dest)
+
+    def _encode(
+        self, planes: list[np.ndarray], plan: OutputPlan, weights: tuple, green_sites: list[int], matrix: np.ndarray
+    ) -> np.ndarray:
+        """The gamma-encoded RGB at the plan's distinct rows and columns (numpy)."""
+        channels = []
+        for channel in range(3):
+            sites = green_sites if channel == 1 else [self.channels.index(channel)]
+            samples = plan.take(planes[sites[0]])
+            if len(sites) == 2:
+                samples += plan.take(planes[sites[1]])
+                samples *= np.float32(0.5)
+            samples *= weights[channel]
+            channels.append(samples)
+        encoded = np.empty((*channels[0].shape, 3), dtype=np.uint8)
+        top = np.float32(len(self.gamma) - 1)
+        for out in range(3):
+            mixed = channels[0] * matrix[out, 0]
+            mixed += channels[1] * matrix[out, 1]
+            mixed += channels[2] * matrix[out, 2]
+            np.clip(mixed, 0.0, 1.0, out=mixed)
+            mixed *= top
+            encoded[..., out] = self.gamma[mixed.astype(np.intp)]
+        return encoded
+
+
+def write_output(
+    rgb: np.ndarray, layout: Layout, colour_space: Any, dest: np.ndarray, expand: tuple[Any, Any] | None = None
+) -> None:
+    """Write gamma-encoded RGB (uint8, H x W x 3) into a buffer of the layout's format.
+
+    ``expand`` gives the rows and columns of ``rgb`` each output pixel takes (an output larger than ``rgb``); the
+    colour conversion is done before, on ``rgb``, and chroma is subsampled by taking every other sample.
+
+    Examples
+    --------
+    >>> rgb = np.array([[[255, 128, 0]]], dtype=np.uint8)
+    >>> dest = np.zeros((1, 4), np.uint8)
+    >>> write_output(rgb, Layout("RGB888", 1, 1, 4, 4), None, dest)
+    >>> dest[0, :3].tolist()  # B, G, R in memory
+    [0, 128, 255]
+    """
+    name, width, height, stride = layout.format, layout.width, layout.height, layout.stride
+    flat = dest.reshape(-1)
+    rows, cols = expand if expand is not None else (np.arange(height), np.arange(width))
+    if "161616" in name:  # 16 bits per channel: the 8-bit values scaled to the full range
+        out16 = flat[: stride * height].reshape(height, stride)[:, : width * 6].view("<u2").reshape(height, width, 3)
+        source = rgb[..., [2, 1, 0] if name == "RGB161616" else [0, 1, 2]].astype(np.uint16) * np.uint16(257)
+        out16[:] = source[rows][:, cols] if expand is not None else source
+        return
+    if name in ("RGB888", "BGR888", "XRGB8888", "XBGR8888"):
+        channels = 4 if name.startswith("X") else 3
+        out = flat[: stride * height].reshape(height, stride)[:, : width * channels].reshape(height, width, channels)
+        order = [2, 1, 0] if name in ("RGB888", "XRGB8888") else [0, 1, 2]
+        source = rgb[..., order]
+        out[..., :3] = source[rows][:, cols] if expand is not None else source
+        if channels == 4:
+            out[..., 3] = 255
+        return
+    y, cb, cr = _ycbcr(rgb, colour_space)
+    luma = flat[: stride * height].reshape(height, stride)
+    luma[:, :width] = y[rows][:, cols] if expand is not None else y
+    half_h, half_w = height // 2, width // 2
+    if expand is not None:  # each 2x2 block's chroma from its top-left sample
+        chroma_rows, chroma_cols = rows[0 : 2 * half_h : 2], cols[0 : 2 * half_w : 2]
+        cb, cr = cb[chroma_rows][:, chroma_cols], cr[chroma_rows][:, chroma_cols]
+    else:
+        cb = cb[: half_h * 2, : half_w * 2].reshape(half_h, 2, half_w, 2).mean(axis=(1, 3))
+        cr = cr[: half_h * 2, : half_w * 2].reshape(half_h, 2, half_w, 2).mean(axis=(1, 3))
+    cb8, cr8 = (np.clip(np.rint(c), 0, 255).astype(np.uint8) for c in (cb, cr))
+    base = stride * height
+    if name in ("YUV420", "YVU420"):
+        chroma_stride = stride // 2
+        first, second = (cb8, cr8) if name == "YUV420" else (cr8, cb8)
+        size = chroma_stride * half_h
+        flat[base : base + size].reshape(half_h, chroma_stride)[:, :half_w] = first
+        flat[base + size : base + 2 * size].reshape(half_h, chroma_stride)[:, :half_w] = second
+    else:  # NV12 / NV21: one plane of interleaved chroma
+        plane = flat[base : base + stride * half_h].reshape(half_h, stride)[:, : 2 * half_w].reshape(half_h, half_w, 2)
+        plane[..., 0], plane[..., 1] = (cb8, cr8) if name == "NV12" else (cr8, cb8)
+
+
+def _ycbcr(rgb: np.ndarray, colour_space: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Y'CbCr of gamma-encoded RGB in the stream's colour space: luma as uint8, chroma as float (0..255)."""
+    encoding = getattr(getattr(colour_space, "ycbcrEncoding", None), "name", "Rec601")
+    limited = getattr(getattr(colour_space, "range", None), "name", "Full") == "Limited"
+    kr, kb = _LUMA.get(encoding, _LUMA["Rec601"])
+    values = rgb.astype(np.float32) / np.float32(255.0)
+    r, g, b = values[..., 0], values[..., 1], values[..., 2]
+    y = kr * r + (1 - kr - kb) * g + kb * b
+    cb = (b - y) / (2 * (1 - kb))
+    cr = (r - y) / (2 * (1 - kr))
+    if limited:
+        y8 = 16 + 219 * y
+        cb, cr = 128 + 224 * cb, 128 + 224 * cr
+    else:
+        y8 = 255 * y
+        cb, cr = 128 + 255 * cb, 128 + 255 * cr
+    return np.clip(np.rint(y8), 0, 255).astype(np.uint8), cb, cr
+
+
+def _write_expanded(encoded: np.ndarray, layout: Layout, plan: OutputPlan, dest: np.ndarray, kernel: Any) -> bool:
+    """Write an RGB format's pixels with the compiled kernel (False for the Y'CbCr formats, left to numpy)."""
+    name, height, stride = layout.format, layout.height, layout.stride
+    rows = dest.reshape(-1)[: stride * height].reshape(height, stride)
+    if "161616" in name:
+        rows, channels = rows.view("<u2"), 3
+    elif name in ("RGB888", "BGR888", "XRGB8888", "XBGR8888"):
+        channels = 4 if name.startswith("X") else 3
+    else:
+        return False
+    order = np.array([2, 1, 0] if name.startswith(("RGB", "XRGB")) else [0, 1, 2], dtype=np.intp)
+    kernel(encoded, plan.row_index, plan.col_index, order, channels, rows)
+    return True
+
+
+def _render_loop(  # pragma: no cover - compiled by numba
+    red: np.ndarray,
+    green: np.ndarray,
+    green2: np.ndarray,
+    blue: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    weights: np.ndarray,
+    matrix: np.ndarray,
+    gamma: np.ndarray,
+    encoded: np.ndarray,
+) -> None:
+    """:meth:`Isp._encode` in one pass (for numba): the same float32 arithmetic, sample by sample."""
+    top = np.float32(len(gamma) - 1)
+    zero, one, half = np.float32(0.0), np.float32(1.0), np.float32(0.5)
+    for i in range(len(rows)):
+        y = rows[i]
+        for j in range(len(cols)):
+            x = cols[j]
+            r = red[y, x] * weights[0]
+            g = (green[y, x] + green2[y, x]) * half * weights[1]
+            b = blue[y, x] * weights[2]
+            for k in range(3):
+                mixed = r * matrix[k, 0] + g * matrix[k, 1] + b * matrix[k, 2]
+                encoded[i, j, k] = gamma[int(min(max(mixed, zero), one) * top)]
+
+
+def _planes_loop(  # pragma: no cover - compiled by numba
+    frame: np.ndarray, black: np.float32, gains: np.ndarray, scale: np.float32, out: np.ndarray
+) -> None:
+    """:meth:`Isp.linear_planes` in one pass (for numba): the same float32 arithmetic, quad by quad."""
+    _, height, width = out.shape
+    for y in range(height):
+        for sy in range(2):
+            row = frame[2 * y + sy]
+            for sx in range(2):
+                site = 2 * sy + sx
+                plane, gain = out[site, y], gains[site, y]
+                for x in range(width):
+                    plane[x] = (np.float32(row[2 * x + sx]) - black) * gain[x] * scale
+
+
+def _pack_loop(frame: np.ndarray, bits: int, out: np.ndarray) -> None:  # pragma: no cover - compiled by numba
+    """:func:`picamcal.raw.packing.pack` into ``out`` (height x stride) in one pass, at 10 or 12 bits."""
+    height, width = frame.shape
+    pixels = 4 if bits == 10 else 2
+    nbytes = pixels + 1
+    groups = (width + pixels - 1) // pixels
+    for y in range(height):
+        row, dest = frame[y], out[y]
+        for group in range(groups):
+            low = 0
+            for k in range(pixels):
+                x = group * pixels + k
+                value = int(row[x]) if x < width else 0
+                dest[group * nbytes + k] = value >> (bits - 8)
+                low |= (value & ((1 << (bits - 8)) - 1)) << ((bits - 8) * k)
+            dest[group * nbytes + pixels] = low
+        for i in range(groups * nbytes, len(dest)):
+            dest[i] = 0
+
+
+def _expand_loop(  # pragma: no cover - compiled by numba
+    encoded: np.ndarray, rows: np.ndarray, cols: np.ndarray, order: np.ndarray, channels: int, out: np.ndarray
+) -> None:
+    """Each output pixel from its sample into the rows ``out``: channels in ``order``, 16-bit outputs scaled by
+    257, X bytes 255."""
+    scale = 257 if out.itemsize == 2 else 1
+    for i in range(len(rows)):
+        y, line = rows[i], out[i]
+        for j in range(len(cols)):
+            x, at = cols[j], j * channels
+            for k in range(3):
+                line[at + k] = encoded[y, x, order[k]] * scale
+            if channels == 4:
+                line[at + 3] = 255
+
+
+def warm_up(packed: bool, compressed: bool) -> None:
+    """Compile the kernels a configuration uses on tiny inputs of the same types, so that its first frame does not
+    wait for numba (a no-op without numba; numba's disk cache makes it quick after the first time)."""
+    planes_kernel = _compiled_planes()
+    if planes_kernel is None:
+        return
+    frame = np.zeros((2, 16), dtype=np.uint16)
+    stack = np.ones((4, 1, 8), dtype=np.float32)
+    planes_kernel(frame, np.float32(0.0), stack, np.float32(1.0), stack)
+    kernels = _compiled_render()
+    assert kernels is not None
+    render, expand = kernels
+    index, encoded = np.zeros(1, dtype=np.intp), np.zeros((1, 1, 3), dtype=np.uint8)
+    weights, matrix = np.ones(3, dtype=np.float32), np.eye(3, dtype=np.float32)
+    render(stack[0], stack[1], stack[2], stack[3], index, index, weights, matrix, np.zeros(2, np.uint8), encoded)
+    order = np.arange(3, dtype=np.intp)
+    for dtype in (np.uint8, np.uint16):
+        expand(encoded, index, index, order, 3, np.zeros((1, 8), dtype=dtype))
+    if packed:
+        _compiled_pack()(frame, 10, np.zeros((2, 32), dtype=np.uint8))
+    if compressed:
+        pisp_compress(frame, shift=4, out=np.zeros((2, 32), dtype=np.uint8))
+
+
+@functools.cache
+def _compiled_render() -> tuple[Any, Any] | None:
+    """:func:`_render_loop` and :func:`_expand_loop` compiled by numba (cached on disk), or None without numba."""
+    try:
+        import numba
+    except ImportError:
+        return None
+    return numba.njit(cache=True, nogil=True)(_render_loop), numba.njit(cache=True, nogil=True)(_expand_loop)
+
+
+@functools.cache
+def _compiled_planes() -> Any:
+    """:func:`_planes_loop` compiled by numba (cached on disk), or None without numba."""
+    try:
+        import numba
+    except ImportError:
+        return None
+    return numba.njit(cache=True, nogil=True)(_planes_loop)
+
+
+@functools.cache
+def _compiled_pack() -> Any:
+    """:func:`_pack_loop` compiled by numba (cached on disk), or None without numba."""
+    try:
+        import numba
+    except ImportError:
+        return None
+    return numba.njit(cache=True, nogil=True)(_pack_loop)
