@@ -31,7 +31,7 @@ from typing import Any
 
 from ..errors import PicamcalError
 from .stopping import Interrupt
-from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs, set_stop
+from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs, set_stop, stop_on_ctrl_c
 
 #: The most files in one task: the pipeline's start and end (reading the first file, writing the last, not
 #: overlapped) are paid once per task, and the outcomes come back once per task.
@@ -187,14 +187,15 @@ class Pool:
 def _init_worker(threads: int, stop: Any) -> None:
     """End with the process that started the pool, stop when it says so, and share the cores among the workers.
 
-    Ctrl-C reaches every process of the terminal's process group, the workers too: they ignore it, and the
-    process that started them stops them (``stop``, an event it sets), so that each finishes or drops its file
-    in flight as that process decides. numba's parallel kernels would otherwise use a thread per core in every
+    Ctrl-C reaches every process of the terminal's process group, the workers too: they start no other file
+    (:func:`~picamcal.batch.worker.stop_on_ctrl_c`, no KeyboardInterrupt), and the process that started them
+    stops them on any signal (``stop``, an event it sets) and decides whether each finishes or drops its file in
+    flight. numba's parallel kernels would otherwise use a thread per core in every
     worker. numba's own runtime setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it compiles
     and refuses a value that differs from the threads it has started.
     """
     exit_with_parent()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, stop_on_ctrl_c)
     set_stop(stop)
     try:
         import numba

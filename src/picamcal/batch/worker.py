@@ -88,11 +88,28 @@ _STOP: Any = None
 _DASK_LOOK_S = 0.2
 
 
+#: Per pool worker process: Ctrl-C reached it (the terminal sends it to the whole process group).
+_CTRL_C = False
+
+
 def set_stop(event: Any) -> None:
     """Give this worker process the event (``is_set()``) by which the batch's own process stops its tasks: no new
     file is started once it is set."""
     global _STOP
     _STOP = event
+
+
+def stop_on_ctrl_c(signum: int, frame: Any) -> None:
+    """A pool worker's SIGINT handler: start no other file at once, rather than when the batch's own process has
+    seen the signal too and set the event (a moment later, longer on a busy machine); the process that started the
+    workers still decides what happens to the files in flight. Only a flag: a handler must not take the event's
+    lock, which the interrupted code may hold."""
+    global _CTRL_C
+    _CTRL_C = True
+
+
+def _stopped() -> bool:
+    return _CTRL_C or (_STOP is not None and _STOP.is_set())
 
 
 def _cached(key: tuple, load: Callable[[], _T]) -> _T:
@@ -136,7 +153,7 @@ def process_jobs(settings: Settings, jobs: Sequence[Job]) -> list[Outcome]:
     """
     if settings.stop_event is not None:
         return list(outcomes(settings, jobs, cancel=_dask_stop(settings.stop_event)))
-    return list(outcomes(settings, jobs, cancel=None if _STOP is None else _STOP.is_set))
+    return list(outcomes(settings, jobs, cancel=_stopped))
 
 
 def _dask_stop(name: str) -> Callable[[], bool]:
@@ -312,4 +329,14 @@ def _colour_matrix(settings: Settings, source_metadata: dict[str, Any]) -> Colou
     return camera_to_srgb(source_metadata, _tuning(settings.tuning), tuning_path=settings.tuning)
 
 
-__all__ = ["Job", "Outcome", "Settings", "calibration_of", "check_worker", "outcomes", "process_jobs", "set_stop"]
+__all__ = [
+    "Job",
+    "Outcome",
+    "Settings",
+    "calibration_of",
+    "check_worker",
+    "outcomes",
+    "process_jobs",
+    "set_stop",
+    "stop_on_ctrl_c",
+]
