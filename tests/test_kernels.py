@@ -19,7 +19,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from picamcal import calibrate, correct, kernels
+from picamcal import calibrate, correct
 from picamcal.bayer import bin_centres
 from picamcal.correct import correction_fields, demosaic
 from picamcal.errors import OutputError
@@ -70,22 +70,6 @@ def test_numba_kernel_matches_the_numpy_path(small, mode):
     fused = correct(target, cal, mode, engine="numba")
     np.testing.assert_allclose(fused, correct(target, cal, mode, engine="numpy"), rtol=0, atol=NUMBA_VS_NUMPY)
     np.testing.assert_allclose(fused, correct(target, cal, mode, engine="reference"), rtol=0, atol=FUSED_VS_REFERENCE)
-
-
-@needs_numba
-@pytest.mark.parametrize("mode", [Mode.CENTRE, Mode.UNCORRECTED])
-def test_the_warm_up_loads_the_kernel_every_correction_runs(mode):
-    """warm_numba's tiny correction passes the argument types of a real one: the dispatcher keeps one compiled
-    signature after both, where a mismatch would add a second (and compile it, seconds, in every new install)."""
-    cal, target = _scene("imx219", "BGGR", size=(200, 160))
-    thread = kernels.warm_numba()
-    assert thread is not None
-    thread.join()
-    kernel = kernels._numba_kernel()
-    assert len(kernel.signatures) == 1
-    correct(target, cal, mode, engine="numba")
-    correct(target, cal, mode, engine="numba", dtype=np.uint16)
-    assert len(kernel.signatures) == 1
 
 
 @pytest.mark.parametrize(

@@ -109,7 +109,7 @@ def _solve_banded(system: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
     Without pivoting, which a collocation matrix does not need (it is totally positive, de Boor); its natural ends'
     rows keep positive pivots. A few milliseconds where a dense solve took tens, and no BLAS threads, which slow to a
-    crawl when another thread of the command keeps a core busy (the kernel's warm-up).
+    crawl when other work keeps the cores busy.
     """
     a, b = system.copy(), rhs.astype(np.float64, copy=True)
     size = a.shape[0]

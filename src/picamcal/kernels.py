@@ -32,10 +32,8 @@ result to the last bit or nearly (compilers may still differ by an ulp):
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import importlib.util
-import threading
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -387,17 +385,8 @@ def correct_numpy(
 # writes the output row last, interleaved: float32, or uint16 codes.
 
 
-_KERNEL_LOCK = threading.Lock()  # one dispatcher per process, also when a warm-up thread and a caller race
-
-
-def _numba_kernel():
-    """The parallel kernel's dispatcher, made once per process (:func:`_make_numba_kernel`)."""
-    with _KERNEL_LOCK:
-        return _make_numba_kernel()
-
-
 @functools.cache
-def _make_numba_kernel():
+def _numba_kernel():
     """Compile (or load from numba's cache) the parallel kernel; numba is imported here only.
 
     The helpers become module globals rather than closure variables of the kernel: numba keys its
@@ -609,39 +598,6 @@ def _make_numba_kernel():
                     _nb_interleave_row(result, out[y])
 
     return kernel
-
-
-def warm_numba() -> threading.Thread | None:
-    """Start loading the numba kernel from numba's disk cache in a background thread; None without numba.
-
-    Loading costs a command a large part of its start (numba's own modules, its linear algebra's scipy, the
-    compiled code: about 0.5 s). Started before the calibration and the first file are read, it overlaps that
-    work; :func:`correct_numba` then finds the kernel ready, or waits for it. The thread corrects a tiny mosaic
-    through the kernel, with arguments of the types a real correction passes, so the very code a correction
-    runs is what gets loaded.
-
-    Examples
-    --------
-    >>> thread = warm_numba()
-    >>> thread is None or thread.join() is None
-    True
-    """
-    if not numba_available():
-        return None
-    thread = threading.Thread(target=_correct_tiny, name="picamcal-numba-warm-up", daemon=True)
-    thread.start()
-    return thread
-
-
-def _correct_tiny() -> None:
-    """Correct an 8 x 8 mosaic with :func:`correct_numba`: loads (or compiles) the kernel; ImportError is ignored
-    here (the real correction raises it, or falls back to numpy)."""
-    taps = make_taps(np.zeros(8, dtype=np.int64), np.full((8, 4), 0.25))
-    channels = np.array([0, 1, 1, 2], dtype=np.int64)
-    gains = np.ones(4, dtype=np.float32)
-    fields = CorrectionFields(np.zeros(4, dtype=np.float32), channels, gains, None, taps, None, taps, taps)
-    with contextlib.suppress(ImportError):
-        correct_numba(np.zeros((8, 8), dtype=np.uint16), fields)
 
 
 def correct_numba(

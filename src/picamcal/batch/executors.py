@@ -31,7 +31,7 @@ from typing import Any
 
 from ..errors import PicamcalError
 from .stopping import Interrupt
-from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs, set_stop, stop_on_ctrl_c
+from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs, set_stop, stop_on_signal
 
 #: The most files in one task: the pipeline's start and end (reading the first file, writing the last, not
 #: overlapped) are paid once per task, and the outcomes come back once per task.
@@ -166,8 +166,11 @@ class Pool:
     def abandon(self, futures: list[Any]) -> None:
         """Drop the tasks in flight: kill the workers, whose temporaries are then stale. The executor's own
         processes are private to it (ProcessPoolExecutor kills its workers itself only from Python 3.14)."""
-        for process in list(getattr(self.executor, "_processes", {}).values()):
+        processes = list(getattr(self.executor, "_processes", {}).values())
+        for process in processes:
             process.kill()
+        for process in processes:  # ended before the batch looks for their temporaries, which are stale only then
+            process.join(timeout=2)
 
     def submit(self, chunk: list[Job]) -> Future[list[Outcome]]:
         try:
@@ -188,14 +191,16 @@ def _init_worker(threads: int, stop: Any) -> None:
     """End with the process that started the pool, stop when it says so, and share the cores among the workers.
 
     Ctrl-C reaches every process of the terminal's process group, the workers too: they start no other file
-    (:func:`~picamcal.batch.worker.stop_on_ctrl_c`, no KeyboardInterrupt), and the process that started them
-    stops them on any signal (``stop``, an event it sets) and decides whether each finishes or drops its file in
-    flight. numba's parallel kernels would otherwise use a thread per core in every
+    (:func:`~picamcal.batch.worker.stop_on_signal`, no KeyboardInterrupt), and the process that started them stops
+    them on any signal (``stop``, an event it sets) and decides whether each finishes or drops its file in flight.
+    A SIGTERM sent to the whole group (systemd, ``timeout``) ends the workers at once, as the process that started
+    them would after its grace; their temporaries are then stale, and it removes them.
+    numba's parallel kernels would otherwise use a thread per core in every
     worker. numba's own runtime setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it compiles
     and refuses a value that differs from the threads it has started.
     """
     exit_with_parent()
-    signal.signal(signal.SIGINT, stop_on_ctrl_c)
+    signal.signal(signal.SIGINT, stop_on_signal)
     set_stop(stop)
     try:
         import numba

@@ -25,7 +25,6 @@ from ..calibration import Calibration, load_calibration
 from ..correct import choose_mode
 from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..export.tuning import load_tuning
-from ..kernels import warm_numba
 from ..modes import Mode, best_mode_reason
 from ..output import OUTPUT_SUFFIXES, camera_to_srgb, is_picamcal_output, output_bytes
 from ..output.ome_zarr import ZarrStack
@@ -204,9 +203,6 @@ def _run(
     progress: Callable[[int, int], None] | None,
     interrupt: Interrupt,
 ) -> BatchResult:
-    items = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs)
-    if _corrects_here(items, options):
-        warm_numba()  # the kernel loads while the calibration and the file are read (a command's largest start cost)
     decode = _check_files(options)
     cal = load_calibration(calibration_path)
     mode = choose_mode(cal, options.mode)  # a flat-field calibration has no centre or pure mode: say so before work
@@ -217,6 +213,7 @@ def _run(
     if options.processed:
         _check_processed_references(options.white, options.tuning, decode)
     settings = _settings(calibration_path, options, decode, mode)
+    items = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs)
     sources = expand_inputs(items, options.input_suffixes, skip=options.place)
     named = [item for item in items if not is_pattern(item)]
     read = [calibration_path, options.white, options.tuning, *named, *sources]
@@ -287,16 +284,6 @@ def _run(
             options.place,
         )
     return result
-
-
-def _corrects_here(items: list[PathArg], options: BatchOptions) -> bool:
-    """Whether this process itself will correct raw frames with the kernel: ``workers=0``, or one file given by name
-    (a pool for one file is overhead, :func:`_run`); not processed images, not a frame that goes out unchanged."""
-    if options.processed or options.scheduler is not None or options.output_format == "dng-gainmap":
-        return False
-    if options.workers == 0:
-        return True
-    return options.workers is None and len(items) == 1 and not is_pattern(items[0]) and Path(items[0]).is_file()
 
 
 def _count_written(jobs: Sequence[Job], sources: list[Path], result: BatchResult, since_ns: int) -> None:

@@ -89,7 +89,7 @@ _DASK_LOOK_S = 0.2
 
 
 #: Per pool worker process: Ctrl-C reached it (the terminal sends it to the whole process group).
-_CTRL_C = False
+_SIGNALLED = False
 
 
 def set_stop(event: Any) -> None:
@@ -99,17 +99,17 @@ def set_stop(event: Any) -> None:
     _STOP = event
 
 
-def stop_on_ctrl_c(signum: int, frame: Any) -> None:
+def stop_on_signal(signum: int, frame: Any) -> None:
     """A pool worker's SIGINT handler: start no other file at once, rather than when the batch's own process has
-    seen the signal too and set the event (a moment later, longer on a busy machine); the process that started the
-    workers still decides what happens to the files in flight. Only a flag: a handler must not take the event's
-    lock, which the interrupted code may hold."""
-    global _CTRL_C
-    _CTRL_C = True
+    seen Ctrl-C too and set the event (a moment later, longer on a busy machine); that process decides what happens
+    to the files in flight. Only a flag: a handler must not take the event's lock, which the interrupted code may
+    hold."""
+    global _SIGNALLED
+    _SIGNALLED = True
 
 
 def _stopped() -> bool:
-    return _CTRL_C or (_STOP is not None and _STOP.is_set())
+    return _SIGNALLED or (_STOP is not None and _STOP.is_set())
 
 
 def _cached(key: tuple, load: Callable[[], _T]) -> _T:
@@ -338,5 +338,5 @@ __all__ = [
     "outcomes",
     "process_jobs",
     "set_stop",
-    "stop_on_ctrl_c",
+    "stop_on_signal",
 ]
