@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
-import re
 import warnings
 from importlib import resources
 
 import pytest
 
+from picamcal._json import read_libcamera_yaml
 from picamcal.errors import PicamcalError, PicamcalWarning
 from picamcal.raw.model import PATTERNS
 from picamcal.sensors import SENSORS, black_level_at, find_sensor_name, get_sensor, given_sensor, sensors_of_size
@@ -102,9 +101,8 @@ def stock_tuning_files() -> list:
 
 
 def published_black_level(tuning_file) -> int:
-    # Two stock files have trailing commas, which libcamera's YAML-based reader accepts; json does not.
-    text = re.sub(r",(\s*[}\]])", r"\1", tuning_file.read_text())
-    algorithms = json.loads(text)["algorithms"]
+    # Two stock files have trailing commas: read as libcamera reads them.
+    algorithms = read_libcamera_yaml(tuning_file, PicamcalError, "a tuning file")["algorithms"]
     level = next(a["rpi.black_level"] for a in algorithms if "rpi.black_level" in a)
     return level["black_level"] if "black_level" in level else level["black_level_func"][1]
 

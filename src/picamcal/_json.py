@@ -54,6 +54,11 @@ def read_json(
     >>> read_json("layout.json", PicamcalError, "a target layout")["width"]
     1920
     """
+    return parse_json(_read_bounded(path, error, what, max_bytes), error, what, path)
+
+
+def _read_bounded(path: str | os.PathLike[str], error: type[PicamcalError], what: str, max_bytes: int) -> bytes:
+    """A regular file's bytes, refused (``error``) when it is larger than ``max_bytes`` or cannot be read."""
     size = require_regular_file(path, error)
     if size > max_bytes:
         raise error(f"is {size / 2**20:.0f} MB, far larger than {what} (at most {max_bytes >> 20} MB)", path)
@@ -61,7 +66,7 @@ def read_json(
         data = Path(path).read_bytes()
     except OSError as exc:
         raise error(f"cannot read: {exc.strerror or exc}", path) from None
-    return parse_json(data, error, what, path)
+    return data
 
 
 def parse_json(
@@ -138,14 +143,7 @@ def read_libcamera_yaml(
     >>> read_libcamera_yaml("tuning.json", PicamcalError, "a tuning file")["algorithms"]  # a trailing comma
     [{'rpi.black_level': {}}]
     """
-    size = require_regular_file(path, error)
-    if size > max_bytes:
-        raise error(f"is {size / 2**20:.0f} MB, far larger than {what} (at most {max_bytes >> 20} MB)", path)
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise error(f"cannot read: {exc.strerror or exc}", path) from None
-    return parse_libcamera_yaml(data, error, what, path)
+    return parse_libcamera_yaml(_read_bounded(path, error, what, max_bytes), error, what, path)
 
 
 def parse_libcamera_yaml(

@@ -17,6 +17,8 @@ from .errors import CalibrationFileError, PicamcalError, RawFormatError
 #: The largest sensor in the registry (OV64A40, 9248 x 6944) is 64 MP; a little over it, so a stitched mosaic
 #: of a few frames still reads.
 DEFAULT_MAX_PIXELS = 100_000_000
+#: Largest colour gain libcamera's Raspberry Pi IPA takes (the ``ColourGains`` control's range, 0 to 32).
+MAX_COLOUR_GAIN = 32.0
 #: The environment variable that overrides :data:`DEFAULT_MAX_PIXELS`.
 MAX_PIXELS_VARIABLE = "PICAMCAL_MAX_PIXELS"
 

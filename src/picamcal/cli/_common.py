@@ -139,7 +139,6 @@ def in_range(
     return check
 
 
-MAX_COLOUR_GAIN = 32
 #: More worker processes than this per core only cost memory (each holds a frame and the calibration).
 MAX_WORKERS_PER_CORE = 4
 #: Colour temperatures of real light sources, from candle light (about 1900 K) to a clear blue sky (10000 K and more).

@@ -12,9 +12,9 @@ import typer
 
 from .._atomic import refuse_inputs_as_output
 from ..errors import OutputError, PicamcalError
+from ..limits import MAX_COLOUR_GAIN
 from ._common import (
     COLOUR_TEMPERATURE,
-    MAX_COLOUR_GAIN,
     BlackOption,
     FrameOption,
     PatternOption,

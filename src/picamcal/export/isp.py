@@ -30,6 +30,7 @@ from .._json import Fields
 from ..bayer import central_half, sites_to_channels
 from ..calibration import Calibration
 from ..errors import PicamcalError
+from ..limits import MAX_COLOUR_GAIN
 from ..raw.model import RawImage, site_channels
 from ..raw.processed import ProcessedImage
 from ..sensors import LSC_GRIDS, SENSORS
@@ -45,8 +46,6 @@ DEFAULT_CT = 4500.0
 #: calibration's white neutral through it); libcamera's controller reads only ``version``, ``target`` and
 #: ``algorithms`` of a version 2 file (src/ipa/rpi/controller/controller.cpp), so it ignores this one.
 RECORD_KEY = "picamcal"
-#: Largest colour gain libcamera's Raspberry Pi IPA takes (the ``ColourGains`` control's range, 0 to 32).
-MAX_COLOUR_GAIN = 32.0
 
 
 class TuningError(PicamcalError):
