@@ -7,13 +7,11 @@ one place a fake is allowed).
 
 from __future__ import annotations
 
-import copy
 import errno
 import json
 import sys
 import types
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -30,12 +28,11 @@ from picamcal.acquire.acquisition import (
     read_manifest,
 )
 from picamcal.acquire.base import IlluminatorError
-from picamcal.acquire.cameras import CameraError, CameraLimits, Picamera2Camera, SimCamera
+from picamcal.acquire.cameras import CameraError, Picamera2Camera, SimCamera
 from picamcal.acquire.illuminators import GpioIlluminator, ManualIlluminator, SimIlluminator, open_illuminator
 from picamcal.errors import OutputError, PicamcalError
 from picamcal.export.tuning import neutral_tuning
-from picamcal.raw.picamera2 import to_picamera2
-from picamcal.simulate import make_camera, render, simulate_references, simulate_target
+from picamcal.simulate import make_camera, simulate_references, simulate_target
 
 SIZE = (320, 240)
 SEED = 3
@@ -485,179 +482,7 @@ def test_open_illuminator_names(monkeypatch):
         open_illuminator("usb")
 
 
-# --- picamera2, with a stand-in for the camera hardware ----------------------------------------------------------
-
-
-STOCK = {
-    "version": 2.0,
-    "target": "bcm2835",
-    "algorithms": [
-        {"rpi.agc": {"speed": 0.2}},
-        {"rpi.alsc": {"n_iter": 100, "corner_strength": 1.5, "calibrations_Cr": [{"ct": 3000, "table": [1.2] * 192}]}},
-        {"rpi.ccm": {"ccms": []}},
-    ],
-}
-
-
-class _FakeRequest:
-    def __init__(self, array, metadata):
-        self.array, self.metadata, self.released = array, metadata, False
-
-    def make_array(self, name):
-        assert name == "raw"
-        return self.array
-
-    def get_metadata(self):
-        return dict(self.metadata)
-
-    def release(self):
-        self.released = True
-
-
-class _FakePicamera2:
-    """What Picamera2Camera uses of picamera2.Picamera2, as a Camera Module v2 on a Pi 4 reports it.
-
-    Controls reach the sensor two frames after set_controls, as on the Pi.
-    """
-
-    cameras: ClassVar[list] = [{"Model": "imx219", "Num": 0}]
-    granted_format = "SBGGR10"
-    opened: ClassVar[list] = []
-    tuning_files: ClassVar[list] = []
-
-    def __init__(self, camera_num=0, tuning=None):
-        self.camera_num, self.tuning = camera_num, tuning
-        raw = render(make_camera("imx219", size=SIZE), "white", rng=0)
-        self.mosaic = raw.bayer
-        self.array, self.config, _ = to_picamera2(raw, packed=False)
-        self.camera_properties = {"Model": "imx219"}
-        self.sensor_modes = [
-            {"size": (160, 120), "bit_depth": 10, "unpacked": "SBGGR10", "format": "SBGGR10_CSI2P"},
-            {"size": SIZE, "bit_depth": 8, "unpacked": "SBGGR8", "format": "SBGGR8"},
-            {"size": SIZE, "bit_depth": 10, "unpacked": "SBGGR10", "format": "SBGGR10_CSI2P"},
-        ]
-        self.camera_controls = {"ExposureTime": (75, 11766829, None), "AnalogueGain": (1.0, 10.666667, None)}
-        self.log: list = []
-        self.applied = {"ExposureTime": 10_000, "AnalogueGain": 1.0}
-        self.pending: list = []
-        self.stalled = False
-        _FakePicamera2.opened.append(self)
-
-    @staticmethod
-    def global_camera_info():
-        return _FakePicamera2.cameras
-
-    @staticmethod
-    def load_tuning_file(name):
-        _FakePicamera2.tuning_files.append(name)
-        return copy.deepcopy(STOCK)
-
-    def create_still_configuration(self, **kwargs):
-        return kwargs
-
-    def configure(self, config):
-        self.log.append(("configure", config))
-
-    def camera_configuration(self):
-        raw = dict(self.config["raw"], format=self.granted_format)
-        return {"raw": raw, "sensor": self.config["sensor"]}
-
-    def start(self):
-        self.log.append("start")
-
-    def set_controls(self, controls):
-        self.log.append(("set_controls", controls))
-        self.pending = [None, dict(controls)]
-
-    def capture_request(self, flush=False, wait=None):
-        assert wait is False  # the adapter waits itself, with a timeout
-        self.log.append(("capture", flush))
-        if self.stalled:
-            return "a job that never finishes"
-        if self.pending:
-            update = self.pending.pop(0)
-            if update:
-                self.applied = {k: update[k] for k in ("ExposureTime", "AnalogueGain")}
-        metadata = {"SensorBlackLevels": [4096] * 4, **self.applied}
-        return _FakeRequest(self.array, metadata)
-
-    def wait(self, job, timeout=None):
-        self.log.append(("wait", timeout))
-        if job == "a job that never finishes":
-            raise TimeoutError
-        return job
-
-    def stop(self):
-        self.log.append("stop")
-
-    def close(self):
-        self.log.append("close")
-
-
-@pytest.fixture
-def fake_picamera2(monkeypatch):
-    module = types.ModuleType("picamera2")
-    module.Picamera2 = _FakePicamera2
-    monkeypatch.setitem(sys.modules, "picamera2", module)
-    monkeypatch.setattr(_FakePicamera2, "opened", [])
-    monkeypatch.setattr(_FakePicamera2, "tuning_files", [])
-    return _FakePicamera2
-
-
-def test_picamera2_camera_wiring(fake_picamera2):
-    camera = Picamera2Camera()
-    fake = fake_picamera2.opened[0]
-    assert fake_picamera2.tuning_files == ["imx219.json"]
-    alsc = fake.tuning["algorithms"][1]["rpi.alsc"]
-    assert alsc["n_iter"] == 0 and "corner_strength" not in alsc
-    assert alsc["calibrations_Cr"] == [{"ct": 4500, "table": [1.0] * 192}] and alsc["luminance_lut"] == [1.0] * 192
-    assert fake.tuning["algorithms"][0] == STOCK["algorithms"][0]
-
-    camera.configure_raw()
-    config = fake.log[0][1]
-    assert config["raw"] == {"format": "SBGGR10", "size": SIZE}  # unpacked, full sensor, highest bit depth
-    assert config["sensor"] == {"output_size": SIZE, "bit_depth": 10} and fake.log[1] == "start"
-    assert camera.limits() == CameraLimits((75.0, 11766829.0), (1.0, 10.666667))
-
-    camera.set_controls(4000.4, 2.0, (1.9, 1.4))
-    controls = {
-        "AeEnable": False,
-        "AwbEnable": False,
-        "ExposureTime": 4000,
-        "AnalogueGain": 2.0,
-        "ColourGains": (1.9, 1.4),
-    }
-    assert fake.log[2] == ("set_controls", controls)
-    raw = camera.capture()
-    # Every frame began exposing after the call; the ones before the controls took effect are dropped.
-    assert fake.log[3:] == [("capture", True), ("wait", pytest.approx(5.012))] * 2
-    assert raw.metadata["exposure_time_s"] == pytest.approx(0.004) and raw.metadata["analogue_gain"] == 2.0
-    np.testing.assert_array_equal(raw.bayer, fake.mosaic)
-    assert (raw.pattern, raw.black_level, raw.sensor) == ("BGGR", (64.0,) * 4, "imx219")
-    camera.capture()
-    assert fake.log[7:] == [("capture", True), ("wait", pytest.approx(5.012))]  # the settings hold: one frame
-    assert camera.describe()["raw_format"] == "SBGGR10" and camera.describe()["size"] == list(SIZE)
-    fake.stalled = True
-    with pytest.raises(CameraError, match="the camera sent no frame within 5 s: it stopped answering"):
-        camera.capture()
-    camera.close()
-    assert fake.log[-2:] == ["stop", "close"]
-
-
-def test_picamera2_camera_opens_with_the_tuning_it_is_given(fake_picamera2):
-    tuning = neutral_tuning(STOCK)
-    Picamera2Camera(tuning=tuning)
-    assert fake_picamera2.tuning_files == []  # the stock file is not even looked for
-    assert fake_picamera2.opened[0].tuning is tuning
-
-
-def test_picamera2_camera_refuses_lossy_raw_and_reports_missing_cameras(fake_picamera2, monkeypatch):
-    monkeypatch.setattr(fake_picamera2, "granted_format", "BGGR16_PISP_COMP1")
-    with pytest.raises(CameraError, match="lossy BGGR16_PISP_COMP1 raw format instead of SBGGR10"):
-        Picamera2Camera().configure_raw()
-    monkeypatch.setattr(fake_picamera2, "cameras", [])
-    with pytest.raises(CameraError, match="no camera found"):
-        Picamera2Camera()
+# --- picamera2 (the adapter runs on the real picamera2 and the virtual camera: test_virtualcam_pi_path.py) -------
 
 
 def test_picamera2_camera_without_picamera2_says_what_to_install(monkeypatch):

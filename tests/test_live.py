@@ -213,7 +213,8 @@ def test_the_callback_unmixes_the_request_buffer_in_place(setup, prepared, name)
     np.testing.assert_array_equal(request.buffers["main"].reshape(height, -1)[:, width * step :], padding)
 
 
-def test_the_callback_refuses_a_stream_of_another_size_on_the_first_frame(setup, prepared):
+def test_the_callback_keeps_a_stream_of_another_size_as_its_error_and_never_raises(setup, prepared, caplog):
+    # picamera2 calls it in its camera thread, where an exception would stop the camera (or abort Qt).
     unmixer = LiveUnmixer(
         (160, 120),
         STREAM_FORMATS["RGB888"],
@@ -224,12 +225,14 @@ def test_the_callback_refuses_a_stream_of_another_size_on_the_first_frame(setup,
     )
     request = FakeRequest(np.zeros((480, 640, 3), np.uint8), "RGB888")
     before = request.buffers["main"].copy()
-    with pytest.raises(
-        LiveStreamError,
-        match=r"the main stream is 640x480 RGB888, but the unmixer was prepared for "
-        r"160x120 RGB888: prepare it with size=\(640, 480\), format=\"RGB888\"",
-    ):
-        unmixer.callback(request)
+    unmixer.callback(request)
+    unmixer.callback(request)  # later frames pass through, with no second line
+    assert isinstance(unmixer.error, LiveStreamError)
+    assert str(unmixer.error) == (
+        "the main stream is 640x480 RGB888, but the unmixer was prepared for 160x120 RGB888: "
+        'prepare it with size=(640, 480), format="RGB888"'
+    )
+    assert [record.getMessage() for record in caplog.records] == [f"{unmixer.error}; the frames pass through unmixed"]
     assert request.mapped == 0 and np.array_equal(request.buffers["main"], before)
 
 

@@ -400,29 +400,6 @@ def test_apply_tuning_writes_the_format_its_out_names(imx219, tmp_path, cli):
 
 
 # ------------------------------------------------------------------------------ the camera's own tuning, on a Pi
-def test_the_camera_opens_with_a_stock_file_picamera2s_json_reader_refuses(monkeypatch):
-    """picamera2 reads the stock file with json, which refuses the Pi 5's imx283.json: picamcal reads it itself."""
-    import sys
-    import types
-
-    from picamcal.acquire.cameras import Picamera2Camera
-    from picamcal.export.tuning import neutral_tuning
-    from test_acquisition import _FakePicamera2
-
-    def load_tuning_file(name):  # as picamera2 does on a Pi 5: json.load of libcamera's pisp file
-        return json.loads((BUNDLED_TUNING_DIR / "pisp" / name).read_text())
-
-    module = types.ModuleType("picamera2")
-    module.Picamera2 = _FakePicamera2
-    monkeypatch.setitem(sys.modules, "picamera2", module)
-    monkeypatch.setattr(_FakePicamera2, "opened", [])
-    monkeypatch.setattr(_FakePicamera2, "cameras", [{"Model": "imx283", "Num": 0}])
-    monkeypatch.setattr(_FakePicamera2, "load_tuning_file", staticmethod(load_tuning_file))
-    monkeypatch.setattr(_FakePicamera2, "platform", "Platform.PISP", raising=False)
-    camera = Picamera2Camera()
-    assert camera._picam2.tuning == neutral_tuning(load_tuning(BUNDLED_TUNING_DIR / "pisp" / "imx283.json"))
-
-
 def test_a_stock_path_error_is_a_picamcal_error():
     with pytest.raises(PicamcalError, match="no stock tuning variant 'tele'"):
         stock_tuning_path("imx219", "pisp", "tele")

@@ -32,6 +32,7 @@ picamera2 is imported only inside :meth:`LiveUnmixer.callback`, when no other ``
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -415,13 +416,15 @@ class LiveUnmixer:
         self.stream = stream
         self._mapped_array = mapped_array
         self._config_checked = False
+        #: What stopped :meth:`callback` (None while it unmixes): a stream that does not match, or a failure.
+        self.error: LiveStreamError | None = None
 
     @classmethod
     def prepare(
         cls,
         calibration: Calibration,
         size: tuple[int, int],
-        format: str = "RGB888",
+        format: str = "XBGR8888",
         *,
         tuning: Mapping[str, Any] | None = None,
         mode: str | Mode = Mode.CENTRE,
@@ -443,7 +446,8 @@ class LiveUnmixer:
         size : (width, height)
             The stream's size (picamera2's ``config["main"]["size"]``).
         format : str
-            picamera2's format name: ``RGB888``, ``BGR888``, ``XBGR8888`` or ``XRGB8888``.
+            picamera2's format name: ``XBGR8888`` (the default, as picamera2's preview and video configurations),
+            ``XRGB8888``, ``RGB888`` or ``BGR888``.
         tuning : dict, optional
             The tuning file the camera runs with, the exported lens shading table in it
             (:func:`picamcal.export.tuning.load_tuning`); without one the stream is taken as flat already, with no
@@ -628,18 +632,25 @@ class LiveUnmixer:
         (``picamera2.MappedArray(request, stream)``, or the ``mapped_array`` given to :meth:`prepare`) and
         :meth:`apply` ed. ``examples/live_preview.py`` shows it on a Pi.
 
-        Raises
-        ------
-        LiveStreamError
-            On the first frame, if the stream is not the prepared size and format.
+        It never raises: picamera2 calls it in the thread that runs its camera, where an exception would stop the
+        camera or the preview's Qt. A stream that does not match (or any failure) is kept in :attr:`error`, logged
+        once (``picamcal.live``, one line) and the frames pass through unchanged from then on. Call
+        :meth:`check_config` with ``picam2.camera_config`` before setting the callback to get that error at
+        start-up instead.
         """
-        if not self._config_checked:
-            self.check_config(request.config[self.stream])
-            self._config_checked = True
-        mapped = self._mapped_array
-        if mapped is None:
-            from picamera2 import MappedArray
+        if self.error is not None:
+            return
+        try:
+            if not self._config_checked:
+                self.check_config(request.config[self.stream])
+                self._config_checked = True
+            mapped = self._mapped_array
+            if mapped is None:
+                from picamera2 import MappedArray
 
-            mapped = MappedArray
-        with mapped(request, self.stream) as buffer:
-            self.apply(buffer.array)
+                mapped = MappedArray
+            with mapped(request, self.stream) as buffer:
+                self.apply(buffer.array)
+        except Exception as exc:  # in picamera2's thread: kept for the caller, never raised there
+            self.error = exc if isinstance(exc, LiveStreamError) else LiveStreamError(f"unmixing failed ({exc!r})")
+            logging.getLogger(__name__).error("%s; the frames pass through unmixed", self.error)

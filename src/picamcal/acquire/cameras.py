@@ -10,14 +10,19 @@ everywhere.
 
 from __future__ import annotations
 
+import concurrent.futures
+import json
 import math
+import os
+import subprocess
+import sys
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
 
 from ..errors import PicamcalError
-from ..export.tuning import load_tuning, neutral_tuning, stock_tuning_path
+from ..export.tuning import TARGET_NAMES, TuningError, load_tuning, neutral_tuning, stock_tuning_path
 from ..raw.model import RawImage
 from ..raw.picamera2 import capture_raw
 from ..references import ROLES
@@ -32,6 +37,10 @@ __all__ = [
     "SimCamera",
     "open_camera",
 ]
+
+
+#: The coarsest analogue gain step of the sensors picamera2 drives, at any gain (the OV5647's 1/16).
+GAIN_STEP = 1 / 16
 
 
 class CameraError(PicamcalError):
@@ -291,8 +300,115 @@ class _Flushed:
         job = self._picam2.capture_request(flush=True, wait=False)
         try:
             return self._picam2.wait(job, timeout=self._timeout)
-        except TimeoutError:
+        # picamera2's job is a concurrent.futures.Future: its timeout is not the built-in TimeoutError before 3.11.
+        except (TimeoutError, concurrent.futures.TimeoutError):
             raise CameraError(f"the camera sent no frame within {self._timeout:.0f} s: it stopped answering") from None
+
+
+#: Lists the cameras as ``Picamera2.global_camera_info()`` does, in a process of its own (:func:`list_cameras`).
+_LIST_CAMERAS = """
+import json
+from picamera2 import Picamera2
+print(json.dumps([{str(k): str(v) for k, v in camera.items()} for camera in Picamera2.global_camera_info()]))
+"""
+
+
+def list_cameras(timeout: float = 120.0) -> list[dict[str, str]]:
+    """The cameras picamera2 sees (``Picamera2.global_camera_info()``: Model, Id, Num, ...), listed by another process.
+
+    Not in this one: listing the cameras starts libcamera's camera manager, whose Raspberry Pi pipeline reads the
+    tuning file (``LIBCAMERA_RPI_TUNING_FILE``, else the stock file) when it registers each camera, and picamera2
+    keeps that manager while it lives, so a tuning given to ``Picamera2(tuning=...)`` afterwards in the same
+    process would be silently ignored (libcamera ``pipeline_base.cpp``; picamera2 ``Picamera2.__init__``).
+
+    Raises
+    ------
+    CameraError
+        The listing fails (picamera2 or libcamera cannot start) or takes longer than ``timeout`` seconds.
+
+    Examples
+    --------
+    On a Raspberry Pi 5 with the HQ camera (docs/virtual-camera.md runs it on the virtual camera):
+
+    >>> [camera["Model"] for camera in list_cameras()]  # doctest: +SKIP
+    ['imx477']
+    """
+    try:
+        result = subprocess.run(
+            [sys.executable, "-c", _LIST_CAMERAS], capture_output=True, text=True, timeout=timeout, env=os.environ
+        )
+    except subprocess.TimeoutExpired:
+        raise CameraError(f"libcamera did not list the cameras within {timeout:.0f} s") from None
+    if result.returncode != 0:
+        lines = [line for line in result.stderr.splitlines() if line.strip()]
+        raise CameraError(f"libcamera cannot list the cameras ({lines[-1] if lines else result.returncode})")
+    try:
+        cameras = json.loads(result.stdout.strip().splitlines()[-1])
+    except (IndexError, ValueError):
+        raise CameraError(f"libcamera cannot list the cameras (it printed {result.stdout[-200:]!r})") from None
+    return [dict(camera) for camera in cameras]
+
+
+def picamera2_target(module: Any) -> str:
+    """The tuning target of the Pi that picamera2 (the imported ``module``) runs on: ``"pisp"`` (Pi 5) or
+    ``"bcm2835"`` (Pi 4 and earlier), from ``Picamera2.platform``."""
+    return "bcm2835" if "VC4" in str(getattr(module.Picamera2, "platform", "")).upper() else "pisp"
+
+
+def check_tuning_target(tuning: dict[str, Any], module: Any, name: str = "the tuning") -> None:
+    """Refuse a tuning for the other Raspberry Pi before picamera2 opens the camera with it.
+
+    libcamera registers no camera with a tuning file for the other platform (a Pi 5's ``pisp`` file on a Pi 4), and
+    picamera2 then fails with a bare IndexError.
+
+    Parameters
+    ----------
+    tuning : dict
+        The tuning (:func:`picamcal.export.tuning.load_tuning`).
+    module : module
+        picamera2, imported (``Picamera2.platform`` says which Pi this is).
+    name : str
+        The tuning's name for the message (its file).
+
+    Raises
+    ------
+    CameraError
+        The tuning's target is not this Pi's.
+
+    Examples
+    --------
+    >>> import types
+    >>> pi4 = types.SimpleNamespace(Picamera2=types.SimpleNamespace(platform="Platform.VC4"))
+    >>> check_tuning_target({"target": "pisp"}, pi4, "tuning.json")
+    Traceback (most recent call last):
+    ...
+    picamcal.acquire.cameras.CameraError: tuning.json is for a Raspberry Pi 5 (target pisp), but this is a \
+Raspberry Pi 4 or earlier (vc4, target bcm2835): export the tuning again with --target vc4
+    """
+    target, given = picamera2_target(module), str(tuning.get("target", ""))
+    if given == target:
+        return
+    names = {"pisp": "a Raspberry Pi 5", "bcm2835": "a Raspberry Pi 4 or earlier"}
+    label = {value: key for key, value in TARGET_NAMES.items()}[target]
+    raise CameraError(
+        f"{name} is for {names.get(given, 'no Raspberry Pi')} (target {given or 'missing'}), but this is "
+        f"{names[target]} ({label}, target {target}): "
+        f"export the tuning again with --target {label}"
+    )
+
+
+def raw_sensor_modes(modes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The sensor modes of picamera2's ``sensor_modes`` that it describes in full (a size and a bit depth).
+
+    picamera2 gives a raw format it does not list (a 14-bit one, ``formats.BAYER_FORMATS``) by its name alone.
+
+    Examples
+    --------
+    >>> full = {"format": "SRGGB12", "unpacked": "SRGGB12", "bit_depth": 12, "size": (4056, 3040)}
+    >>> [mode["format"] for mode in raw_sensor_modes([{"format": "SRGGB14"}, full])]
+    ['SRGGB12']
+    """
+    return [mode for mode in modes if {"size", "bit_depth", "unpacked"} <= mode.keys()]
 
 
 class Picamera2Camera:
@@ -331,35 +447,36 @@ class Picamera2Camera:
 
     def __init__(self, camera_num: int = 0, *, tuning: dict[str, Any] | None = None) -> None:
         module = _import_picamera2()
-        try:
-            cameras = module.Picamera2.global_camera_info()
-        except RuntimeError as exc:
-            raise CameraError(f"libcamera cannot list the cameras ({exc})") from exc
-        if not cameras:
-            raise CameraError(
-                "no camera found: check the ribbon cable and that rpicam-hello --list-cameras lists the camera"
-            )
-        if not 0 <= camera_num < len(cameras):
-            raise CameraError(f"no camera {camera_num}: {len(cameras)} found (numbered from 0)")
-        self.camera_num = camera_num
-        self.model = str(cameras[camera_num].get("Model", "unknown"))
+        target = picamera2_target(module)
         if tuning is None:
-            try:
-                stock = module.Picamera2.load_tuning_file(f"{self.model}.json")
-            except RuntimeError as exc:
-                raise CameraError(f"no stock libcamera tuning file for the {self.model} ({exc})") from exc
-            except ValueError:  # picamera2 reads it with json, which refuses what libcamera's parser takes (a ",}")
-                target = "bcm2835" if "VC4" in str(getattr(module.Picamera2, "platform", "")).upper() else "pisp"
-                stock = load_tuning(stock_tuning_path(self.model, target))
-            tuning = neutral_tuning(stock)
+            cameras = list_cameras()
+            if not cameras:
+                raise CameraError(
+                    "no camera found: check the ribbon cable and that rpicam-hello --list-cameras lists the camera"
+                )
+            if not 0 <= camera_num < len(cameras):
+                raise CameraError(f"no camera {camera_num}: {len(cameras)} found (numbered from 0)")
+            model = cameras[camera_num].get("Model", "unknown")
+            try:  # the file picamera2 finds (Picamera2.load_tuning_file), read by libcamera's rules
+                tuning = neutral_tuning(load_tuning(stock_tuning_path(model, target)))
+            except TuningError as exc:
+                raise CameraError(f"no stock libcamera tuning file for the {model} ({exc})") from exc
+            self._tuning_description = "stock with static unity rpi.alsc (n_iter 0)"
+        else:
+            check_tuning_target(tuning, module)
+            self._tuning_description = "as given"
         try:
             self._picam2 = module.Picamera2(camera_num, tuning=tuning)
-            modes = list(self._picam2.sensor_modes)
+        except IndexError:  # picamera2 found no such camera
+            raise CameraError(f"no camera {camera_num}: libcamera registered none with this tuning") from None
         except RuntimeError as exc:
             raise CameraError(f"cannot open camera {camera_num} ({exc}); is another program using it?") from exc
+        self.camera_num = camera_num
+        self.model = str(self._picam2.camera_properties.get("Model", "unknown"))
+        modes = raw_sensor_modes(list(self._picam2.sensor_modes))
         if not modes:
             self._picam2.close()
-            raise CameraError(f"the {self.model} reports no sensor modes")
+            raise CameraError(f"the {self.model} reports no raw sensor mode that picamera2 describes")
         self._mode = max(modes, key=lambda m: (m["size"][0] * m["size"][1], m["bit_depth"]))
         self._raw_format: str | None = None
         self._requested: tuple[int, float] = (10_000, 1.0)
@@ -414,9 +531,10 @@ class Picamera2Camera:
         exposure_us, gain = self._requested
         actual_us = 1e6 * float(raw.metadata.get("exposure_time_s", 0.0))
         actual_gain = float(raw.metadata.get("analogue_gain", 0.0))
-        # Exposure is whole sensor lines (tens of µs) and gain a register code (a few % at high gain).
+        # Exposure is whole sensor lines (tens of µs) and gain a register code: a few % at high gain, and steps of
+        # 1/16 on the OV5647, whose code is floor(16 g) (libcamera cam_helper_ov5647.cpp): 1.06 is applied as 1.0.
         return abs(actual_us - exposure_us) <= max(100.0, 0.02 * exposure_us) and math.isclose(
-            actual_gain, gain, rel_tol=0.05
+            actual_gain, gain, rel_tol=0.05, abs_tol=GAIN_STEP
         )
 
     def capture(self) -> RawImage:
@@ -456,7 +574,7 @@ class Picamera2Camera:
             "size": list(self._mode["size"]),
             "raw_format": self._raw_format or str(self._mode["unpacked"]),
             "bit_depth": int(self._mode["bit_depth"]),
-            "tuning": "stock with static unity rpi.alsc (n_iter 0)",
+            "tuning": self._tuning_description,
         }
 
     def close(self) -> None:

@@ -8,6 +8,7 @@ sees). :func:`open_illuminator` opens one from its command-line name.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -22,6 +23,7 @@ __all__ = [
     "GpioIlluminator",
     "ManualIlluminator",
     "SimIlluminator",
+    "VirtualIlluminator",
     "open_illuminator",
 ]
 
@@ -132,6 +134,53 @@ class ManualIlluminator:
         return {"kind": "manual"}
 
 
+class VirtualIlluminator:
+    """The light of the virtual camera's scene (``picamcal virtual-camera``): a rig for picamera2 on a PC.
+
+    ``picamcal virtual-camera -- picamcal acquire --camera picamera2 --illuminator virtual`` acquires a calibration
+    run through the real picamera2 as on a Raspberry Pi, the references lit as the simulator's jig lights them
+    (amounts ``rgb / 255`` of the primaries; :class:`SimIlluminator`).
+
+    Raises
+    ------
+    IlluminatorError
+        Not inside the virtual camera, or (on the first colour) no virtual camera opened in this process.
+
+    Examples
+    --------
+    >>> VirtualIlluminator().describe()  # inside picamcal virtual-camera  # doctest: +SKIP
+    {'kind': 'virtual'}
+    """
+
+    def __init__(self) -> None:
+        from ..virtualcam.options import VARIABLES
+
+        if VARIABLES["platform"] not in os.environ:
+            raise IlluminatorError(
+                "the virtual illuminator lights the virtual camera only: run picamcal virtual-camera -- picamcal "
+                "acquire --camera picamera2 --illuminator virtual"
+            )
+        self.rgb: tuple[int, int, int] = (0, 0, 0)
+
+    def set_rgb(self, red: int, green: int, blue: int) -> None:
+        """Set the light of the virtual camera's scene."""
+        from ..virtualcam.camera import set_light
+
+        rgb = check_rgb(red, green, blue)
+        try:
+            set_light((rgb[0] / 255, rgb[1] / 255, rgb[2] / 255))
+        except PicamcalError as exc:
+            raise IlluminatorError(str(exc)) from None
+        self.rgb = rgb
+
+    def close(self) -> None:
+        """Leave the light as it is (the virtual camera ends with its process)."""
+
+    def describe(self) -> dict[str, Any]:
+        """``{"kind": "virtual"}``."""
+        return {"kind": "virtual"}
+
+
 class GpioIlluminator:
     """A NeoPixel (WS2812) driven from a Raspberry Pi pin with the CircuitPython NeoPixel library.
 
@@ -217,7 +266,8 @@ def open_illuminator(
     spec : str
         ``serial`` (find the Arduino) or ``serial:PORT``; ``gpio`` (pin D18) or ``gpio:PIN``; ``screen`` (a
         full-screen window on ``$DISPLAY``, else prompts to show the images), ``screen:DISPLAY`` or
-        ``screen:prompt`` (:func:`~picamcal.acquire.screen.open_screen`); ``manual``; ``sim``.
+        ``screen:prompt`` (:func:`~picamcal.acquire.screen.open_screen`); ``manual``; ``sim``; ``virtual`` (the
+        virtual camera's light, :class:`VirtualIlluminator`).
     colours : mapping, optional
         The run's extra colours, name -> (R, G, B): ``manual`` and the screen's prompts name them.
     input_fn : callable
@@ -247,9 +297,11 @@ def open_illuminator(
         from .screen import open_screen
 
         return open_screen(argument.strip() or None, colours=colours, input_fn=input_fn)
-    if kind in ("manual", "sim") and not colon:
+    if kind in ("manual", "sim", "virtual") and not colon:
+        if kind == "virtual":
+            return VirtualIlluminator()
         return ManualIlluminator(input_fn, colours=colours) if kind == "manual" else SimIlluminator()
     raise PicamcalError(
         f"unknown illuminator {spec!r} (expected serial, serial:PORT, gpio, gpio:PIN, screen, screen:DISPLAY, "
-        "screen:prompt, manual or sim)"
+        "screen:prompt, manual, sim or virtual)"
     )

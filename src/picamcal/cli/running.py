@@ -92,7 +92,7 @@ def acquire_cmd(
         str,
         typer.Option(
             help="serial (serial:PORT), gpio (gpio:PIN, default D18), screen (full-screen on this display, or "
-            "prompts; screen:DISPLAY, screen:prompt), manual or sim."
+            "prompts; screen:DISPLAY, screen:prompt), manual, sim, or virtual (the light of picamcal virtual-camera)."
         ),
     ] = "serial",
     colour: Annotated[

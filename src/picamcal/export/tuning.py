@@ -40,6 +40,24 @@ from .isp import (
 #: Where libcamera installs the stock tuning files on Raspberry Pi OS.
 STOCK_TUNING_DIR = Path("/usr/share/libcamera/ipa/rpi")
 _TARGET_DIRS = {"bcm2835": "vc4", "pisp": "pisp"}
+
+
+def installed_tuning_dirs(folder: str) -> list[Path]:
+    """Where a Raspberry Pi keeps libcamera's tuning files for ``folder`` (``vc4`` or ``pisp``), in the order
+    picamera2 looks (``Picamera2.load_tuning_file``): a libcamera built in ``~/libcamera``, one installed in
+    ``/usr/local``, then Raspberry Pi OS's own.
+
+    Examples
+    --------
+    >>> [str(path) for path in installed_tuning_dirs("pisp")][1:]
+    ['/usr/local/share/libcamera/ipa/rpi/pisp', '/usr/share/libcamera/ipa/rpi/pisp']
+    """
+    return [
+        Path(os.path.expanduser(f"~/libcamera/src/ipa/rpi/{folder}/data")),
+        Path("/usr/local/share/libcamera/ipa/rpi") / folder,
+        STOCK_TUNING_DIR / folder,
+    ]
+
 #: Raspberry Pi's stock tuning files that ship with picamcal, for computers that are not a Raspberry Pi.
 BUNDLED_TUNING_DIR = Path(__file__).resolve().parent.parent / "data" / "libcamera-tuning"
 #: The names users know the targets by (libcamera's IPA directories) -> tuning file targets.
@@ -91,7 +109,8 @@ def stock_tuning_files(sensor: str) -> dict[str, dict[str, Path]]:
 
     The variants are the files named ``<sensor>_<variant>.json`` (``imx708_wide_noir.json``, ``imx477_16mm.json``)
     that are not another registry sensor's (``imx296_mono.json`` is the monochrome ``imx296_mono``'s). Each file is
-    libcamera's installed one on a Raspberry Pi (``/usr/share/libcamera/ipa/rpi``), else the copy picamcal ships.
+    the one picamera2 finds on a Raspberry Pi (:func:`installed_tuning_dirs`: the file the camera loads), else the
+    copy picamcal ships.
 
     Examples
     --------
@@ -104,8 +123,8 @@ def stock_tuning_files(sensor: str) -> dict[str, dict[str, Path]]:
     sensor = sensor.lower()
     files: dict[str, dict[str, Path]] = {}
     for target, folder in _TARGET_DIRS.items():
-        for root in (STOCK_TUNING_DIR, BUNDLED_TUNING_DIR):
-            for path in sorted((root / folder).glob(f"{sensor}*.json")):
+        for root in (*installed_tuning_dirs(folder), BUNDLED_TUNING_DIR / folder):
+            for path in sorted(root.glob(f"{sensor}*.json")):
                 stem = path.stem.lower()
                 if stem == sensor:
                     variant = ""
@@ -145,8 +164,9 @@ def describe_variants(sensor: str) -> str:
 def stock_tuning_path(sensor: str, target: str, variant: str | None = None) -> Path:
     """The stock tuning file of a sensor (or of one of its variants) for a target (``"bcm2835"`` or ``"pisp"``).
 
-    On a Raspberry Pi, the file libcamera installed (it matches the libcamera the camera runs); elsewhere the
-    copy picamcal ships (Raspberry Pi's stock files, BSD-2-Clause, ``picamcal/data/libcamera-tuning``).
+    On a Raspberry Pi, the file picamera2 finds (:func:`installed_tuning_dirs`; it matches the libcamera the camera
+    runs); elsewhere the copy picamcal ships (Raspberry Pi's stock files, BSD-2-Clause,
+    ``picamcal/data/libcamera-tuning``).
 
     Raises
     ------
@@ -401,6 +421,16 @@ def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
     each bin; the target in each bin is the reciprocal of the white, ``1 / W_c(b)`` (paper: ``Cb LST =
     1 / W``). The fit is separable, ``T = Fy+ G Fx+.T`` with ``F = bin average @ P`` and ``F+`` a
     least-squares inverse with a small smoothness penalty (:data:`SMOOTHNESS`).
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> fit_gain_tables(cal, "bcm2835").shape, fit_gain_tables(cal, "pisp").shape  # the Pi 4's and the Pi 5's grid
+    ((3, 12, 16), (3, 32, 32))
+    >>> red, green, blue = fit_gain_tables(cal, "pisp")
+    >>> bool(green[0, 0] > 1.5 * green[16, 16])  # the corners, darker, get more gain
+    True
     """
     py, px = table_to_pixels(target, calibration.width, calibration.height)
     fy = _bin_average(calibration.height, calibration.bin_size) @ py
@@ -440,6 +470,16 @@ def alsc_tables(
     -----
     PicamcalWarning
         With ``clip_gains``, which cells were clipped and by how much.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> tables = alsc_tables(cal, "pisp")
+    >>> {name: (table.shape, round(float(table.min()), 3)) for name, table in tables.items()}
+    {'luminance_lut': ((32, 32), 1.0), 'Cr': ((32, 32), 1.0), 'Cb': ((32, 32), 1.0)}
+    >>> round(float(tables["luminance_lut"].max()), 1)  # the darkest corner's gain
+    1.9
     """
     t_r, t_g, t_b = fit_gain_tables(calibration, target)
     if np.any(np.array([t_r, t_g, t_b]) <= 0):
@@ -666,7 +706,15 @@ def save_tuning(path: str | os.PathLike[str], tuning: dict[str, Any], overwrite:
 
 
 def sensor_of_tuning_file(path: str | os.PathLike[str]) -> str | None:
-    """The sensor a stock tuning file is for, from its name (``imx219.json``, ``imx219_noir.json``)."""
+    """The sensor a stock tuning file is for, from its name (``imx219.json``, ``imx219_noir.json``).
+
+    Examples
+    --------
+    >>> sensor_of_tuning_file(stock_tuning_path("imx708", "pisp", "wide")), sensor_of_tuning_file("imx219_noir.json")
+    ('imx708', 'imx219')
+    >>> sensor_of_tuning_file("my_tuned_camera.json") is None  # not a name the registry knows
+    True
+    """
     return find_sensor_name(Path(path).stem)
 
 

@@ -56,7 +56,7 @@ from .frames import Scene, VirtualSensor
 from .ipa import Ipa, IpaError, load_camera_tuning
 from .isp import Isp, Layout, OutputPlan, encode_raw, sample_indices, warm_up
 from .modes import SensorSpec, scaled_spec, sensor_spec
-from .options import Options
+from .options import Options, VirtualCameraError
 from .request import Request, RequestStatus, fail, log
 from .values import Orientation, Point, Rectangle, Size, orientation_bits
 
@@ -638,3 +638,36 @@ class CameraManager:
         with self._completed_lock:
             self._completed.append(request)
         os.eventfd_write(self._event_fd, 1)
+
+
+def set_light(light: tuple[float, float, float]) -> None:
+    """Light the scene of the virtual cameras of this process: the light of a virtual rig.
+
+    The illuminator of ``picamcal acquire --camera picamera2 --illuminator virtual``
+    (:class:`picamcal.acquire.illuminators.VirtualIlluminator`); the frames after the change see it.
+
+    Parameters
+    ----------
+    light : (float, float, float)
+        Amounts of the light's red, green and blue primaries (1, 1, 1 is the white light; 0, 0, 0 is dark).
+
+    Raises
+    ------
+    VirtualCameraError
+        No virtual camera runs in this process (none has been opened through picamera2).
+
+    Examples
+    --------
+    >>> manager = CameraManager.singleton()  # as picamera2 starts it, inside the virtual camera
+    >>> set_light((1.0, 0.0, 0.0))
+    >>> [data.sensor.scene.light for data in manager._camera_data]
+    [(1.0, 0.0, 0.0)]
+    """
+    manager = CameraManager._instance() if CameraManager._instance else None
+    if manager is None:
+        raise VirtualCameraError(
+            "no virtual camera runs in this process: the virtual light needs picamera2 on the virtual camera "
+            "(picamcal virtual-camera -- COMMAND)"
+        )
+    for data in manager._camera_data:
+        data.sensor.scene.set_light(light)

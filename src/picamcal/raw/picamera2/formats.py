@@ -14,7 +14,8 @@ __all__ = ["PISP_ALIGN", "RAW_FORMATS", "UNICAM_ALIGN", "RawFormat", "max_stride
 
 _ORDER = f"({'|'.join(PATTERNS)})"
 _UNCOMPRESSED = re.compile(rf"S{_ORDER}(8|10|12|14|16)(_CSI2P)?")
-_PISP = re.compile(rf"{_ORDER}(?:16)?_PISP_COMP1")
+# picamera2 spells it S<order>16_PISP_COMP1 (SensorFormat.format), libcamera <order>_PISP_COMP1.
+_PISP = re.compile(rf"S?{_ORDER}(?:16)?_PISP_COMP1")
 # libcamera's greyscale formats (R8, R10_CSI2P, ..., MONO_PISP_COMP1) and V4L2's names for them (Y10P, GREY).
 _MONO = re.compile(r"(?:R|Y)(?:8|10|12|14|16)(?:_CSI2P|P)?|MONO(?:16)?_PISP_COMP1|GREY")
 #: Every raw format name picamcal reads (libcamera's spelling; matched case-insensitively).
