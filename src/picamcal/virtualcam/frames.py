@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from .._rows import in_row_blocks
 from ..colour_wheel import wheel_layout, wheel_scene
 from ..errors import PicamcalError
 from ..sensors import black_level_at, get_sensor
@@ -234,11 +235,19 @@ class VirtualSensor:
             offset = int(rng.integers(0, rendered.response.size + 1))
         kernel = _compiled_readout()
         if kernel is not None:
-            frame = np.empty(rendered.response.shape, dtype=np.uint16)
+            response = rendered.response
+            height, width = response.shape
+            frame = np.empty(response.shape, dtype=np.uint16)
             black, white = np.float32(rendered.black), np.float32(rendered.white)
-            kernel(
-                rendered.response, rendered.bank, offset, fraction, shot, read, black, white, noise, hflip, vflip, frame
-            )
+
+            def read_out(start: int, stop: int) -> None:  # rows start..stop of the frame, from their source rows
+                first = height - stop if vflip else start
+                source = response[first : first + stop - start]
+                at = offset + first * width
+                rows = frame[start:stop]
+                kernel(source, rendered.bank, at, fraction, shot, read, black, white, noise, hflip, vflip, rows)
+
+            in_row_blocks(read_out, height)
             return frame
         signal = rendered.response * fraction
         if noise:

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from .._rows import in_row_blocks
 from ..export.isp import SensorMode, channel_tables, table_to_pixels
 from ..raw.model import site_channels
 from ..raw.packing import pack
@@ -69,20 +70,19 @@ def encode_raw(frame: np.ndarray, layout: Layout, bits: int, dest: np.ndarray) -
     """
     name, height, width = layout.format, layout.height, layout.width
     if name.endswith("_PISP_COMP1"):
-        pisp_compress(frame, shift=16 - bits, out=dest)
+        in_row_blocks(lambda a, b: pisp_compress(frame[a:b], shift=16 - bits, out=dest[a:b]), height)
     elif name.endswith("_CSI2P"):
         kernel = _compiled_pack() if bits in (10, 12) else None
         if kernel is None:
             dest[:] = pack(frame, bits, layout.stride)
         else:
-            kernel(frame, bits, dest)
+            in_row_blocks(lambda a, b: kernel(frame[a:b], bits, dest[a:b]), height)
     elif name.endswith("16"):
         dest[:, : 2 * width].view("<u2")[:] = frame << (16 - bits) if bits < 16 else frame
     elif bits == 8:
         dest[:, :width] = frame
     else:
         dest[:, : 2 * width].view("<u2")[:] = frame
-    del height
 
 
 def gamma_table(curve: tuple[np.ndarray, np.ndarray] | None, size: int = 4096) -> np.ndarray:
@@ -204,8 +204,10 @@ class Isp:
         if kernel is not None:
             if self._stack is None or self._stack.shape != gains.shape:  # reused: fresh pages cost more than the work
                 self._stack = np.empty(gains.shape, dtype=np.float32)
-            kernel(frame, np.float32(self.black), gains, scale, self._stack)
-            return list(self._stack)
+            stack, black = self._stack, np.float32(self.black)
+            quads = gains.shape[1]  # rows of quads: two rows of the frame each
+            in_row_blocks(lambda a, b: kernel(frame[2 * a : 2 * b], black, gains[:, a:b], scale, stack[:, a:b]), quads)
+            return list(stack)
         planes = []
         for site in range(4):
             sy, sx = divmod(site, 2)
@@ -244,10 +246,15 @@ class Isp:
         if kernels is not None:
             red, blue = self.channels.index(0), self.channels.index(2)
             encoded = np.empty((len(plan.unique_rows), len(plan.unique_cols), 3), dtype=np.uint8)
-            kernels[0](
-                planes[red], planes[green_sites[0]], planes[green_sites[-1]], planes[blue], plan.unique_rows,
-                plan.unique_cols, np.array(weights, np.float32), matrix, self.gamma, encoded,
-            )  # fmt: skip
+            factors = np.array(weights, np.float32)
+
+            def encode(a: int, b: int) -> None:
+                kernels[0](
+                    planes[red], planes[green_sites[0]], planes[green_sites[-1]], planes[blue], plan.unique_rows[a:b],
+                    plan.unique_cols, factors, matrix, self.gamma, encoded[a:b],
+                )  # fmt: skip
+
+            in_row_blocks(encode, len(encoded))
             if _write_expanded(encoded, layout, plan, dest, kernels[1]):
                 return
         else:
@@ -368,7 +375,7 @@ def _write_expanded(encoded: np.ndarray, layout: Layout, plan: OutputPlan, dest:
     else:
         return False
     order = np.array([2, 1, 0] if name.startswith(("RGB", "XRGB")) else [0, 1, 2], dtype=np.intp)
-    kernel(encoded, plan.row_index, plan.col_index, order, channels, rows)
+    in_row_blocks(lambda a, b: kernel(encoded, plan.row_index[a:b], plan.col_index, order, channels, rows[a:b]), height)
     return True
 
 

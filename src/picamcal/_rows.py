@@ -1,0 +1,57 @@
+"""A frame's rows in blocks, one per core, each in a thread: for kernels compiled with ``nogil`` (numba), which then
+run in parallel, as the virtual camera's per-frame work must to keep up with a sensor's frame rate.
+
+Examples
+--------
+>>> out = np.zeros(1000)
+>>> def fill(start, stop):
+...     out[start:stop] = np.arange(start, stop)
+>>> in_row_blocks(fill, 1000)
+>>> bool(np.array_equal(out, np.arange(1000)))
+True
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+#: Fewer rows than this a block are not worth a thread.
+MIN_BLOCK_ROWS = 64
+
+
+def cores() -> int:
+    """The CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+@functools.cache
+def _pool() -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max(1, cores() - 1), thread_name_prefix="picamcal-rows")
+
+
+def in_row_blocks(run: Callable[[int, int], None], rows: int) -> None:
+    """Call ``run(start, stop)`` on consecutive blocks of ``rows`` rows that cover them, one block per core.
+
+    The first block runs in the calling thread, the others in a shared pool; it returns when all are done and
+    raises a failed block's exception. Where there is one core, or too few rows, it is ``run(0, rows)``.
+    """
+    blocks = max(1, min(cores(), rows // MIN_BLOCK_ROWS))
+    if blocks == 1:
+        run(0, rows)
+        return
+    first, *others = itertools.pairwise(np.linspace(0, rows, blocks + 1).round().astype(int).tolist())
+    futures = [_pool().submit(run, start, stop) for start, stop in others]
+    try:
+        run(*first)
+    finally:
+        for future in futures:
+            future.result()
