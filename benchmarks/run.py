@@ -1,13 +1,14 @@
 """picamcal benchmarks: one command, every figure against a baseline measured in the same run.
 
-Usage: python3 benchmarks/run.py [--sensor imx219] [--repeats 5] [--only NAME ...] [--readme]
+Usage: python3 benchmarks/run.py [--sensor imx219] [--repeats 5] [--only NAME ...] [--write-docs]
 
 It times calibration, raw reading, the matrix inversion and the wheel search itself, then runs the other
 benchmarks of this folder one after the other: start-up (bench_startup), single commands beside their work
 (bench_commands), correction (bench_correct), batches
 file to file (bench_batch) and live unmixing (bench_live); `--only calibration startup ...` picks some. With
-`--readme` it also writes everything it printed into the README, between the markers of its "Benchmarks" section,
-so that the README's figures are those of one run. The whole run takes about 12 minutes on a 2-core machine.
+`--write-docs` it also writes everything it printed into docs/benchmarks.md, the documentation site's Benchmarks
+page, between the markers of its "The figures" section, so that the page's figures are those of one run. The whole
+run takes about 12 minutes on a 2-core machine.
 
 These machines are shared and noisy, so each figure is the median of several runs and is printed
 beside a baseline timed in the same process (absolute times drift from run to run; ratios less so).
@@ -167,18 +168,19 @@ SUITES = {
     "batch": "bench_batch",
     "live": "bench_live",
 }
-README = Path(__file__).resolve().parents[1] / "README.md"
-START, END = "<!-- benchmarks/run.py --readme: start -->", "<!-- benchmarks/run.py --readme: end -->"
+#: The documentation site's Benchmarks page, where ``--write-docs`` puts the figures.
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+START, END = "<!-- benchmarks/run.py --write-docs: start -->", "<!-- benchmarks/run.py --write-docs: end -->"
 
 
-def write_readme(text: str) -> None:
-    """Put ``text`` (what this run printed) between the README's markers."""
-    page = README.read_text()
-    head, _, rest = page.partition(START)
+def write_page(text: str, page: Path = PAGE) -> None:
+    """Put ``text`` (what this run printed) between the markers of the Benchmarks page."""
+    source = page.read_text()
+    head, _, rest = source.partition(START)
     _, _, tail = rest.partition(END)
     if not rest or not tail:
-        raise SystemExit(f"{README}: the markers {START} and {END} are missing")
-    README.write_text(f"{head}{START}\n```text\n{text.strip()}\n```\n{END}{tail}")
+        raise SystemExit(f"{page}: the markers {START} and {END} are missing")
+    page.write_text(f"{head}{START}\n```text\n{text.strip()}\n```\n{END}{tail}")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -191,7 +193,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sensor", default="imx219")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--only", nargs="+", choices=["calibration", *SUITES], help="run only these")
-    parser.add_argument("--readme", action="store_true", help="write the printed figures into README.md")
+    parser.add_argument(
+        "--write-docs", action="store_true", help="write the printed figures into docs/benchmarks.md (the site's page)"
+    )
     args = parser.parse_args(argv)
     chosen = args.only or ["calibration", *SUITES]
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -212,8 +216,8 @@ def main(argv: list[str] | None = None) -> None:
                 calibration_benchmarks(args)
             else:
                 importlib.import_module(SUITES[name]).main([])
-    if args.readme:
-        write_readme(printed.getvalue())
+    if args.write_docs:
+        write_page(printed.getvalue())
 
 
 if __name__ == "__main__":

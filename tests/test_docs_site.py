@@ -1,7 +1,8 @@
 """The documentation site (docs/conf.py) builds from the repository with warnings as errors, and what it must hold is
 there: an API page with its example for every public name, every tutorial with its pictures, the gallery; a broken
 link, a failing tutorial command or a public function without a docstring fails the build with its page and line.
-Also: the citation, the changelog, and the short README's draft with its commands run on the simulator."""
+Also: the citation, the changelog, the benchmark figures' page, and the short README with its commands run on the
+simulator."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-DRAFT = DOCS / "_readme_draft.md"
+README = ROOT / "README.md"
 TUTORIALS = ["microscope-white", "full-rig", "batch", "darktable", "live", "virtual-camera"]
 #: What the build writes into the source folder, left out of the copy it builds from.
 GENERATED = ("_build", "_generated", "auto_examples", "generated", "picamcal*.rst", "sg_execution_times.rst")
@@ -54,11 +55,11 @@ def build(source: Path, out: Path) -> subprocess.CompletedProcess:
 
 
 def copy_repository(into: Path) -> Path:
-    """What the site is built from (docs, examples, the README it includes, the changelog), without what a
+    """What the site is built from (docs, examples, the changelog it includes, the citation), without what a
     previous build generated."""
     shutil.copytree(DOCS, into / "docs", ignore=shutil.ignore_patterns(*GENERATED))
     shutil.copytree(ROOT / "examples", into / "examples", ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("README.md", "CHANGELOG.md", "CITATION.cff"):
+    for name in ("CHANGELOG.md", "CITATION.cff"):
         shutil.copy(ROOT / name, into / name)
     return into / "docs"
 
@@ -90,7 +91,7 @@ def test_every_public_name_has_an_api_page_with_its_example(site):
             pages = list((site / "api" / "generated").glob(f"*.{name}.html"))
             if not pages:
                 missing.append(f"{module_name}.{name}")
-            elif inspect.isfunction(value) and f"{module_name}.{name}" not in names["EXAMPLES_STILL_MISSING"]:
+            elif inspect.isfunction(value):
                 if not any("Examples" in path.read_text() and "&gt;&gt;&gt;" in path.read_text() for path in pages):
                     without_example.append(f"{module_name}.{name}")
     assert not missing, f"public names without an API page: {missing}"
@@ -127,7 +128,7 @@ def test_the_gallery_and_the_other_pages_are_there(site):
     for page in sorted(DOCS.glob("*.md")):
         if not page.name.startswith("_"):
             assert (site / f"{page.stem}.html").exists(), f"{page.name} is not in the site"
-    # The benchmarks page shows the figures benchmarks/run.py --readme wrote, and names the machine.
+    # The benchmarks page shows the figures benchmarks/run.py --write-docs wrote, and names the machine.
     benchmarks = (site / "benchmarks.html").read_text()
     assert "===== calibration =====" in benchmarks and "Intel(R) Xeon(R) Processor" in benchmarks
     assert "10.5334/joh.20" in (site / "citing.html").read_text()
@@ -194,35 +195,50 @@ def test_a_broken_link_a_failing_command_or_a_missing_docstring_fails_the_build(
     assert re.search(r"sitecheck\.py:7: WARNING: sitecheck\.documented's docstring has no example", printed), printed
 
 
-# --- the short README (its draft until it replaces README.md) -----------------------------------------------------
+# --- the short README -------------------------------------------------------------------------------------------
 
 
-def readme_pages() -> list[Path]:
-    """The README and its draft, each that has the short README's workflow section."""
-    return [page for page in (ROOT / "README.md", DRAFT) if page.exists() and "## The workflow" in page.read_text()]
-
-
-def test_the_readme_draft_is_short_and_keeps_the_quick_start():
-    if not DRAFT.exists():
-        pytest.skip("the draft has replaced README.md")
-    text = DRAFT.read_text()
+def test_the_readme_is_short_and_its_links_work_on_github():
+    # What a newcomer reads in five minutes; the Quick start's two commands are checked by tests/test_project.py.
+    text = README.read_text()
     assert len(text.splitlines()) <= 150
-    assert re.findall(r"^## (.+)$", text, re.MULTILINE)[0] == "Quick start"
-
-    def quick_start(page: str) -> str:
-        return re.search(r"```bash\n(.*?)```", page.split("## Quick start", 1)[1], re.DOTALL).group(1)
-
-    assert quick_start(text) == quick_start((ROOT / "README.md").read_text())
-    for link in re.findall(r"\]\(((?:docs/|CONTRIBUTING|CITATION|CHANGELOG)[^)#]*)", text):
+    assert re.findall(r"^## (.+)$", text, re.MULTILINE)[:3] == [
+        "Quick start",
+        "Installing",
+        "The workflow on your own camera",
+    ]
+    # Links into the repository (the site's Markdown sources, the picture, CONTRIBUTING, ...) are files that exist,
+    # so GitHub shows them; every tutorial and reference page is linked.
+    links = re.findall(r"\]\(((?:docs/|CONTRIBUTING|CITATION|CHANGELOG)[^)#]*)", text)
+    for link in links:
         assert (ROOT / link).exists(), link
+    assert "docs/images/before-after.png" in links
+    for name in TUTORIALS:
+        assert f"docs/tutorials/{name}.md" in links, name
+    reference = re.findall(r"\]\(\.\./([a-z-]+\.md)\)", (DOCS / "reference" / "index.md").read_text())
+    assert reference and all(f"docs/{page}" in links for page in reference), reference
+
+
+def test_the_benchmark_figures_are_written_into_the_benchmarks_page(tmp_path):
+    # benchmarks/run.py --write-docs puts what the run printed between the markers of docs/benchmarks.md, and
+    # leaves the rest of the page as it was.
+    run = runpy.run_path(str(ROOT / "benchmarks" / "run.py"))
+    assert run["PAGE"] == DOCS / "benchmarks.md"
+    page = tmp_path / "benchmarks.md"
+    page.write_text(run["PAGE"].read_text())
+    run["write_page"]("\n===== calibration =====\nnew figures\n", page)
+    head, rest = page.read_text().split(run["START"])
+    figures, tail = rest.split(run["END"])
+    assert figures == "\n```text\n===== calibration =====\nnew figures\n```\n"
+    before = run["PAGE"].read_text()
+    assert before.startswith(head) and before.endswith(tail) and "Intel(R) Xeon(R) Processor" in before
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("page", readme_pages(), ids=lambda page: page.name)
-def test_the_readme_workflow_runs_on_the_simulator(page, tmp_path):
+def test_the_readme_workflow_runs_on_the_simulator(tmp_path):
     # The five commands of "The workflow on your own camera", in order, on a simulated calibration run
     # (captures/) and a folder holding its target (scans/).
-    section = page.read_text().split("## The workflow", 1)[1]
+    section = README.read_text().split("## The workflow", 1)[1]
     block = re.search(r"```bash\n(.*?)```", section, re.DOTALL).group(1)
     commands = [line.split("#")[0].strip() for line in block.strip().splitlines()]
     workflow = ["inspect", "calibrate", "correct", "export-tuning", "report"]

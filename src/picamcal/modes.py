@@ -116,7 +116,13 @@ def best_mode(has_unmixing: bool) -> Mode:
 
 
 def best_mode_reason(has_unmixing: bool) -> str:
-    """Why :func:`best_mode` chose its mode, in a few words for a summary line (see its example)."""
+    """Why :func:`best_mode` chose its mode, in a few words for a summary line.
+
+    Examples
+    --------
+    >>> f"in mode {best_mode(has_unmixing=True).value} ({best_mode_reason(True)})"
+    'in mode centre (the best this calibration does: it has colour unmixing)'
+    """
     return "the best this calibration does: " + (
         "it has colour unmixing" if has_unmixing else "it has no colour references, only a white"
     )

@@ -613,7 +613,16 @@ picamcal calibrate --white WHITE --unmixing-from JIG.npz
 
 
 def record_provenance(record: Mapping[str, Any]) -> dict[str, Any]:
-    """The keys of a record that are not fields of :class:`Calibration`: its inputs, times and versions."""
+    """The keys of a record that are not fields of :class:`Calibration`: its inputs, times and versions.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> provenance = record_provenance(cal.to_record())
+    >>> sorted(provenance), [entry["role"] for entry in provenance["inputs"]]
+    (['black_frame', 'created', 'inputs', 'software_version'], ['white', 'red', 'green', 'blue', 'black'])
+    """
     return {key: value for key, value in record.items() if key not in (*RECORD_FIELDS, *DERIVED_KEYS)}
 
 

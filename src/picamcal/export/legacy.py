@@ -184,6 +184,19 @@ def save_legacy_table(path: str | os.PathLike[str], table: np.ndarray, overwrite
     ------
     PicamcalError
         Not a table the firmware reads (:func:`check_legacy_table`); nothing is written.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> save_legacy_table("lens_shading.npy", legacy_table(cal))
+    PosixPath('lens_shading.npy')
+    >>> np.load("lens_shading.npy").shape  # what the picamera fork's camera.lens_shading_table takes
+    (4, 4, 6)
+    >>> save_legacy_table("lens_shading.npy", legacy_table(cal))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.OutputError: lens_shading.npy: exists already (use --overwrite to replace it)
     """
     check_legacy_table(table)
     path = Path(path)

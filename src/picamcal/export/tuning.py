@@ -58,6 +58,7 @@ def installed_tuning_dirs(folder: str) -> list[Path]:
         STOCK_TUNING_DIR / folder,
     ]
 
+
 #: Raspberry Pi's stock tuning files that ship with picamcal, for computers that are not a Raspberry Pi.
 BUNDLED_TUNING_DIR = Path(__file__).resolve().parent.parent / "data" / "libcamera-tuning"
 #: The names users know the targets by (libcamera's IPA directories) -> tuning file targets.
@@ -76,7 +77,7 @@ def load_tuning(path: str | os.PathLike[str]) -> dict[str, Any]:
     TuningError
         Missing, not a regular file, unreadable, not what libcamera's parser reads (or nested absurdly deep), not
         version 2, an unknown target, or sections that break libcamera's rules
-        (:func:`~picamcal.export.isp.check_tuning`).
+        (:func:`~picamcal.export.tuning_rules.check_tuning`).
 
     Examples
     --------
@@ -178,6 +179,9 @@ def stock_tuning_path(sensor: str, target: str, variant: str | None = None) -> P
     --------
     >>> stock_tuning_path("imx219", "pisp").name, stock_tuning_path("imx708", "bcm2835", "wide").name
     ('imx219.json', 'imx708_wide.json')
+    >>> stock_tuning_path("imx477", "vc4").parent.name  # the platform's name is taken too
+    'vc4'
+
     """
     return stock_tuning_bases(sensor, (target,), variant)[0][0]
 
@@ -204,6 +208,10 @@ def stock_tuning_bases(
     (['imx296_16mm.json'], 'Raspberry Pi ships no vc4 tuning file for the imx296_16mm: wrote the pisp one only')
     """
     sensor, variant = sensor.lower(), (variant or "").lower().replace("-", "_")
+    targets = [TARGET_NAMES.get(target, target) for target in targets]  # vc4 and pisp, as users name them, too
+    unknown = [target for target in targets if target not in _TARGET_DIRS]
+    if unknown:
+        raise TuningError(f"unknown tuning target {unknown[0]!r} (expected vc4, pisp, bcm2835)")
     files = stock_tuning_files(sensor)
     name = f"{sensor}_{variant}" if variant else sensor
     labels = {target: label for label, target in TARGET_NAMES.items()}
@@ -361,7 +369,7 @@ def neutral_tuning(stock: dict[str, Any]) -> dict[str, Any]:
     Raises
     ------
     TuningError
-        ``stock`` is not a tuning libcamera would load (:func:`~picamcal.export.isp.check_tuning`).
+        ``stock`` is not a tuning libcamera would load (:func:`~picamcal.export.tuning_rules.check_tuning`).
 
     Examples
     --------
@@ -683,8 +691,8 @@ def save_tuning(path: str | os.PathLike[str], tuning: dict[str, Any], overwrite:
     Raises
     ------
     TuningError
-        A section breaks libcamera's rules (:func:`~picamcal.export.isp.check_tuning`), a gain or colour matrix
-        coefficient is outside the hardware's range (:func:`~picamcal.export.isp.check_hardware_range`), or a
+        A section breaks libcamera's rules (:func:`~picamcal.export.tuning_rules.check_tuning`), a gain or colour matrix
+        coefficient is outside the hardware's range (:func:`~picamcal.export.tuning_rules.check_hardware_range`), or a
         value is not JSON (NaN, infinity); nothing is written.
 
     Examples

@@ -37,7 +37,15 @@ _PI_CAMERA_DEVICES = ("unicam", "rp1-cfe", "pispbe", "bcm2835-isp")
 
 
 def shim_directory() -> Path:
-    """The directory that holds the virtual camera's ``libcamera`` package."""
+    """The directory that holds the virtual camera's ``libcamera`` package.
+
+    Examples
+    --------
+    >>> (shim_directory() / "libcamera" / "__init__.py").is_file()
+    True
+    >>> environment(Options(), {})["PYTHONPATH"] == str(shim_directory())  # what a command gets first on its path
+    True
+    """
     return Path(__file__).resolve().parent / "shim"
 
 
@@ -154,12 +162,22 @@ def install(
 
     Examples
     --------
-    In a script, before picamera2 is imported (not run here: it changes the process's import path)::
+    In a script, before picamera2 is imported. The example writes the script and runs it in a Python of its own, as
+    ``install`` changes its process's import path and environment:
 
-        from picamcal.virtualcam import install
-
-        install(sensor="imx219", size=(640, 480))
-        from picamera2 import Picamera2
+    >>> from pathlib import Path
+    >>> _ = Path("camera.py").write_text('''
+    ... from picamcal.virtualcam import install
+    ...
+    ... install(platform="vc4", sensor="imx219", size=(640, 480))
+    ... from picamera2 import Picamera2
+    ...
+    ... with Picamera2() as picam2:
+    ...     picam2.start()
+    ...     print(picam2.camera_properties["Model"], picam2.camera_configuration()["raw"]["format"])
+    ... ''')
+    >>> print(subprocess.run([sys.executable, "camera.py"], capture_output=True, text=True).stdout, end="")
+    imx219 SBGGR10_CSI2P
     """
     options = Options(platform, sensor, size, seed, scene, brightness)
     check(options)
@@ -205,6 +223,22 @@ def run_with_virtual_camera(command: Sequence[str], options: Options, *, force: 
     VirtualCameraError
         No command, a command that is not found, a real camera (unless ``force``), or a setting libcamera would
         refuse (:func:`check`).
+
+    Examples
+    --------
+    What ``picamcal virtual-camera --sensor imx219 --size 320x240 -- python3 which_camera.py`` does, for a script
+    that writes down the camera picamera2 finds:
+
+    >>> _ = Path("which_camera.py").write_text('''
+    ... from picamera2 import Picamera2
+    ...
+    ... with open("camera.txt", "w") as file:
+    ...     file.write(Picamera2.global_camera_info()[0]["Model"])
+    ... ''')
+    >>> run_with_virtual_camera([sys.executable, "which_camera.py"], Options(sensor="imx219", size=(320, 240)))
+    0
+    >>> Path("camera.txt").read_text()
+    'imx219'
     """
     if not command:
         raise VirtualCameraError(

@@ -70,7 +70,11 @@ def encode_raw(frame: np.ndarray, layout: Layout, bits: int, dest: np.ndarray) -
     """
     name, height, width = layout.format, layout.height, layout.width
     if name.endswith("_PISP_COMP1"):
-        in_row_blocks(lambda a, b: pisp_compress(frame[a:b], shift=16 - bits, out=dest[a:b]), height)
+
+        def compress(a: int, b: int) -> None:
+            pisp_compress(frame[a:b], shift=16 - bits, out=dest[a:b])
+
+        in_row_blocks(compress, height)
     elif name.endswith("_CSI2P"):
         kernel = _compiled_pack() if bits in (10, 12) else None
         if kernel is None:

@@ -179,14 +179,27 @@ def capture_raw(picam2: Any, *, sensor: str | None = None) -> RawImage:
 
     Examples
     --------
-    On the Pi, with a camera attached (so not run as a doctest)::
+    A script for a Raspberry Pi with its camera; here it runs on picamcal's virtual camera
+    (:func:`picamcal.virtualcam.install`, the script's first two lines, in a Python of its own as it changes the
+    import path), which the real picamera2 runs on:
 
-        from picamera2 import Picamera2
-
-        picam2 = Picamera2()
-        picam2.configure(picam2.create_still_configuration(raw={"format": "SBGGR16"}))
-        picam2.start()
-        raw = capture_raw(picam2)
+    >>> import subprocess, sys
+    >>> from pathlib import Path
+    >>> _ = Path("capture.py").write_text('''
+    ... from picamcal.virtualcam import install
+    ... install(sensor="imx219", size=(320, 240))  # not on a Raspberry Pi: the virtual camera
+    ...
+    ... from picamera2 import Picamera2
+    ... from picamcal.raw.picamera2 import capture_raw
+    ...
+    ... with Picamera2() as picam2:
+    ...     picam2.configure(picam2.create_still_configuration(raw={"format": "SBGGR16"}))
+    ...     picam2.start()
+    ...     raw = capture_raw(picam2)
+    ... print(raw.sensor, raw.pattern, raw.bayer.shape, raw.black_level)
+    ... ''')
+    >>> print(subprocess.run([sys.executable, "capture.py"], capture_output=True, text=True).stdout, end="")
+    imx219 BGGR (240, 320) (64.0, 64.0, 64.0, 64.0)
     """
     config = dict(picam2.camera_configuration())
     model = picam2.camera_properties.get("Model")
