@@ -5,9 +5,17 @@ Each example runs in its own empty temporary folder (so it may write ``cal.npz``
 
     >>> from picamcal.simulate import make_camera, simulate_references
     >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+
+The whole session (the tests under ``tests/`` too, and the processes they start) keeps its compiled C kernel
+(:mod:`picamcal.ckernel`) in a temporary folder of its own, so that no test writes into the user's home: one
+compile per session. It is set here, in the root, so that a run of the doctests alone has it as well.
 """
 
 from __future__ import annotations
+
+import os
+import shutil
+import tempfile
 
 import numpy as np
 import pytest
@@ -18,6 +26,12 @@ import picamcal
 #: Examples that run a whole workflow and cannot be fast: marked ``slow``, so the fast loop (``-m "not slow"``,
 #: CONTRIBUTING.md) leaves them out; the full run still runs them. Every other example takes well under a second.
 SLOW_EXAMPLES = {"picamcal.demo.run_demo", "picamcal.report.html.write_report"}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    folder = tempfile.mkdtemp(prefix="picamcal-test-cache-")
+    os.environ["PICAMCAL_CACHE_DIR"] = folder
+    config.add_cleanup(lambda: shutil.rmtree(folder, ignore_errors=True))
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -368,7 +368,7 @@ def _bench(
     cal = picamcal.load_calibration(cal_path)
     raw = read_raw(frames[0])
     input_mb = sum(p.stat().st_size for p in frames) / 1e6
-    float_out = correct(raw, cal, "centre")  # warm-up: numba's kernel and the calibration's fields
+    float_out = correct(raw, cal, "centre")  # warm-up: the kernel (C, or numba's) and the calibration's fields
     codes_out = correct(raw, cal, "centre", dtype=np.uint16)
     _ARRAYS.update(float32=float_out, uint16=codes_out, matrix=camera_to_srgb(raw.metadata))
     stack = ZarrStack(folder / "alone.zarr", [str(p) for p in frames], {}, "cal.npz")

@@ -12,10 +12,11 @@ two ways, in turns (round-robin), so that both see the same load:
   modules are imported and whose compiled kernels are loaded by an earlier run: reading, calibrating or
   correcting, checks and writing, and nothing of starting up.
 
-The difference is the start-up a user feels on every command: the interpreter, imports, numba loading its
-compiled kernels. The goal: at most 0.5 s for each command, printed as met, or MISSED by how much. The processes
+The difference is the start-up a user feels on every command: the interpreter, imports, loading the compiled
+kernels. The goal: at most 0.5 s for each command, printed as met, or MISSED by how much. The processes
 run with a byte-code cache of their own (``PYTHONPYCACHEPREFIX``), filled by one untimed run, as an installed
-package has one; numba's cache of compiled kernels is the installation's own, also filled by that run.
+package has one; the caches of compiled kernels (picamcal's C kernel, numba's) are the installation's own, also
+filled by that run.
 """
 
 from __future__ import annotations

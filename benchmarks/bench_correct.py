@@ -6,28 +6,30 @@ For an 8 MP (IMX219) and a 12 MP (IMX477) simulated frame, each corrected in mod
 flat field, demosaic, unmixing), it prints milliseconds per frame, each the median of several runs,
 all measured in this one process:
 
-- ``picamcal.correct`` with the fused numba kernel, writing float32 (H, W, 3) into a reused output array
-  (``out=``) and into a new one, and the same for the ``uint16-tiff`` codes (``dtype=np.uint16``, (H, W, 3),
-  written by the kernel with no float32 image); with the numpy path (both outputs); with the plain
-  reference implementation;
+- ``picamcal.correct`` with the fused kernel, C (``engine="c"``) and numba, each writing float32 (H, W, 3)
+  into a reused output array (``out=``) and into a new one, and the same for the ``uint16-tiff`` codes
+  (``dtype=np.uint16``, (H, W, 3), written by the kernel with no float32 image); with the numpy path (both
+  outputs); with the plain reference implementation;
 - the paper-style application of the unmixing field alone (the 2019 code: the 3x3 field upsampled to
   full resolution with ``scipy.ndimage.zoom(order=1)``, applied with ``numpy.sum`` broadcasting), on
   the same flat-fielded, demosaiced image;
 - a plain ``np.copyto`` of an (H, W, 3) float32 array and of an (H, W, 3) uint16 one, the memory-bandwidth
   floor of writing each output;
 
-with ratios against the paper-style application and against the copy of the same output type, and each
-method's peak memory per frame relative to the (H, W, 3) float32 output. Peak memory is tracemalloc's peak
-over one run (numpy registers every array allocation with tracemalloc, and the numba kernel allocates only
-numpy arrays, in its Python wrapper), so it counts arrays, not the interpreter or numba itself. The first
-numba call compiles the kernel (or loads it from numba's cache), and the first ``correct`` of a calibration
-solves for its spline coefficients (kept for the next frames): both are a warm-up, not timed.
+with ratios against the paper-style application and against the copy of the same output type, each
+method's peak memory per frame relative to the (H, W, 3) float32 output, and the C kernel's time relative to
+numba's for each output. Peak memory is tracemalloc's peak over one run (numpy registers every array
+allocation with tracemalloc, and the numba kernel allocates only numpy arrays, in its Python wrapper), so it
+counts arrays, not the interpreter or numba itself; the C kernel's few rows per thread are its own
+allocations, which tracemalloc does not see. The first call of a kernel compiles it (or loads it from its
+cache), and the first ``correct`` of a calibration solves for its spline coefficients (kept for the next
+frames): both are a warm-up, not timed.
 
 These machines are shared: absolute times drift with the load, ratios less so. The copies and the fused
-kernel are timed in turns (round-robin) so that they see the same load; "cpu ms" is the CPU time of
-all threads (the kernel runs on every core numba has; the copy on one), which says what a frame
-costs when the machine is busy with other work (when cpu ms is no more than the wall time, the kernel had
-one core to itself at most).
+kernels are timed in turns (round-robin) so that they see the same load; "cpu ms" is the CPU time of
+all threads (the kernels run on every core, ``picamcal.kernels.kernel_threads()``; the copy on one), which
+says what a frame costs when the machine is busy with other work (when cpu ms is no more than the wall time,
+the kernel had one core to itself at most).
 """
 
 from __future__ import annotations
@@ -42,8 +44,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 import picamcal
+from picamcal.ckernel import c_available
 from picamcal.correct import correct
-from picamcal.kernels import numba_available
+from picamcal.kernels import kernel_threads, numba_available
 from picamcal.simulate import make_camera, simulate_references, simulate_target
 
 GOAL_PAPER = 25.0  # the fused kernel at least this many times faster than the paper-style application
@@ -52,10 +55,22 @@ GOAL_MEMORY = 4.0  # peak memory per frame at most this many times the output
 
 COPY_FLOAT = "memory copy, float32 (H, W, 3)"
 COPY_CODES = "memory copy, uint16 (H, W, 3)"
-FUSED_FLOAT = "fused kernel (numba), float32, reused output"
-FUSED_FLOAT_NEW = "fused kernel (numba), float32, new output"
-FUSED_CODES = "fused kernel (numba), uint16, reused output"
-FUSED_CODES_NEW = "fused kernel (numba), uint16, new output"
+#: The fused kernel's rows, per engine: (output, whether uint16 codes, whether into a reused array).
+OUTPUTS = [
+    ("float32, reused output", False, True),
+    ("float32, new output", False, False),
+    ("uint16, reused output", True, True),
+    ("uint16, new output", True, False),
+]
+
+
+def fused_row(engine: str, output: str) -> str:
+    return f"fused kernel ({engine}), {output}"
+
+
+FUSED_FLOAT = fused_row("numba", "float32, reused output")
+FUSED_FLOAT_NEW = fused_row("numba", "float32, new output")
+FUSED_CODES = fused_row("numba", "uint16, reused output")
 PAPER = "paper-style: zoom(order=1) + numpy.sum"
 
 
@@ -103,13 +118,15 @@ def bench_sensor(sensor: str, repeats: int, slow_repeats: int) -> list[str]:
         (COPY_FLOAT, lambda: np.copyto(target, source)),
         (COPY_CODES, lambda: np.copyto(target_codes, source_codes)),
     ]
-    if numba_available():
-        fast += [
-            (FUSED_FLOAT, lambda: correct(raw, cal, "centre", engine="numba", out=reused)),
-            (FUSED_FLOAT_NEW, lambda: correct(raw, cal, "centre", engine="numba")),
-            (FUSED_CODES, lambda: correct(raw, cal, "centre", engine="numba", out=reused_codes, dtype=u16)),
-            (FUSED_CODES_NEW, lambda: correct(raw, cal, "centre", engine="numba", dtype=u16)),
-        ]
+    engines = [name for name, there in (("c", c_available()), ("numba", numba_available())) if there]
+    for engine in engines:
+        for output, codes, reuse in OUTPUTS:
+            out = (reused_codes if codes else reused) if reuse else None
+
+            def run(engine: str = engine, out: np.ndarray | None = out, dtype: type = u16 if codes else np.float32):
+                return correct(raw, cal, "centre", engine=engine, out=out, dtype=dtype)
+
+            fast.append((fused_row(engine, output), run))
     slow: list[tuple[str, Callable[[], object]]] = [
         ("numpy path, float32", lambda: correct(raw, cal, "centre", engine="numpy")),
         ("numpy path, uint16", lambda: correct(raw, cal, "centre", engine="numpy", dtype=u16)),
@@ -144,14 +161,19 @@ def bench_sensor(sensor: str, repeats: int, slow_repeats: int) -> list[str]:
             f"  {name:<48} {ms:>9.1f} {cpu_ms:>8.1f} {n:>5} {paper_ms / ms:>20.1f} {ms / copy_ms:>11.2f} "
             f"{peak / 2**20:>9.1f} {peak / output_bytes:>9.2f}"
         )
+    if engines == ["c", "numba"]:
+        lines.append("  C kernel / numba kernel, wall (cpu) ms:")
+        for output, _, _ in OUTPUTS:
+            c, numba = results[fused_row("c", output)], results[fused_row("numba", output)]
+            lines.append(f"    {output:<24} {c[0] / numba[0]:.2f}x ({c[1] / numba[1]:.2f}x)")
     if not numba_available():
-        return [*lines, "  numba is not installed: no fused kernel to measure (pip install numba)"]
+        return [*lines, "  numba is not installed: the goals are the numba kernel's (pip install numba)"]
     copy_float, copy_codes = results[COPY_FLOAT][0], results[COPY_CODES][0]
     fused, codes = results[FUSED_FLOAT][0], results[FUSED_CODES][0]
     new_peak = results[FUSED_FLOAT_NEW][2]
     return [
         *lines,
-        "  goals (fused kernel):",
+        "  goals (fused kernel, numba):",
         "    "
         + _goal(
             f"at least {GOAL_PAPER:g}x faster than the paper-style application", paper_ms / fused, GOAL_PAPER, True
@@ -179,14 +201,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--slow-repeats", type=int, default=1, help="runs of the numpy paths, reference and paper-style (median)"
     )
     args = parser.parse_args(argv)
-    threads = "-"
-    if numba_available():
-        import numba
-
-        threads = str(numba.get_num_threads())
     print(
-        f"picamcal {picamcal.__version__}: {os.cpu_count()} CPUs, numba threads {threads}, "
-        f"load average {os.getloadavg()[0]:.1f} at the start"
+        f"picamcal {picamcal.__version__}: {os.cpu_count()} CPUs, kernel threads {kernel_threads()}, "
+        f"C kernel {'built' if c_available() else 'not available'}, load average {os.getloadavg()[0]:.1f} at the start"
     )
     for sensor in args.sensor or ["imx219", "imx477"]:
         print()

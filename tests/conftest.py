@@ -54,6 +54,21 @@ def simulated_calibration(folder, size: tuple[int, int], seed: int):
     return refs, folder / "cal.npz"
 
 
+@pytest.fixture
+def no_c_kernel(monkeypatch, tmp_path):
+    """This test runs as on a machine without a C compiler (``CC=/nonexistent/cc``, an empty kernel cache), so
+    that the fallbacks of ``engine="auto"`` run; the session's compiled kernel comes back afterwards."""
+    import importlib
+
+    ckernel = importlib.import_module("picamcal.ckernel")
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    monkeypatch.setenv("PICAMCAL_CACHE_DIR", str(tmp_path / "kernel-cache"))
+    ckernel._library.cache_clear()
+    yield
+    monkeypatch.undo()
+    ckernel._library.cache_clear()
+
+
 # Started from a small launcher: Linux starts a child's ru_maxrss at the peak of the process it was forked from
 # (exec keeps the old memory's high-water mark), so a child forked from pytest itself would report at least
 # pytest's own size. The launcher is a bare Python of about 10 MB that reports its own child's peak alone.

@@ -168,6 +168,7 @@ def larger():
     return _scene("imx477", "RGGB", (1000, 800))
 
 
+@pytest.mark.usefixtures("no_c_kernel")  # else auto is the C kernel
 def test_auto_falls_back_to_numpy_when_numba_cannot_be_imported(larger, monkeypatch):
     cal, target = larger
     expected = correct(target, cal, "centre", engine="numpy")

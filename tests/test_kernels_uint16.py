@@ -17,6 +17,7 @@ import pytest
 import tifffile
 
 from picamcal import calibrate, correct
+from picamcal.ckernel import c_available
 from picamcal.correct import UINT16_WHITE
 from picamcal.errors import OutputError
 from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available
@@ -25,7 +26,8 @@ from picamcal.raw import RawImage
 from picamcal.simulate import make_camera, simulate_references, simulate_target
 
 needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is not installed")
-ENGINES = ["numpy", "reference", pytest.param("numba", marks=needs_numba)]
+needs_c = pytest.mark.skipif(not c_available(), reason="the C kernel cannot be compiled here")
+ENGINES = ["numpy", "reference", pytest.param("numba", marks=needs_numba), pytest.param("c", marks=needs_c)]
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 
@@ -126,7 +128,9 @@ def test_wrong_out_is_refused_with_picamcals_error(scene, engine):
         correct(raw, cal, "flat", binned=True, dtype=np.uint16)
 
 
-@pytest.mark.parametrize("engine", ["numpy", pytest.param("numba", marks=needs_numba)])
+@pytest.mark.parametrize(
+    "engine", ["numpy", pytest.param("numba", marks=needs_numba), pytest.param("c", marks=needs_c)]
+)
 def test_codes_need_no_float32_image_at_full_resolution(engine):
     camera = make_camera("imx477", size=(1000, 800))
     cal = calibrate(**simulate_references(camera, seed=1))
@@ -142,8 +146,8 @@ def test_codes_need_no_float32_image_at_full_resolution(engine):
         finally:
             tracemalloc.stop()
     # The codes are half a float32 image, so the peak drops by about half an image (measured, in float32 images:
-    # 1.00 -> 0.50 with numba; 1.28 -> 0.86 with numpy, which adds one float32 block of 64 rows, large next to
-    # this small frame); with a float32 image at full resolution besides, it would rise by half an image instead.
+    # 1.00 -> 0.50 with numba and C; 1.28 -> 0.86 with numpy, which adds one float32 block of 64 rows, large next
+    # to this small frame); with a float32 image at full resolution besides, it would rise by half an image instead.
     assert peaks[np.uint16] < peaks[np.float32] - 0.4, peaks
     assert peaks[np.uint16] < (0.9 if engine == "numpy" else 0.52), peaks
 
@@ -175,6 +179,7 @@ def test_importing_correct_imports_no_numba():
     assert result.stdout.split() == [str(numba_available()), "False"]
 
 
+@pytest.mark.usefixtures("no_c_kernel")  # else auto is the C kernel
 def test_auto_falls_back_to_numpy_when_an_installed_numba_fails_to_import(scene, monkeypatch):
     cal, raw = scene
     correct_module = sys.modules["picamcal.correct"]

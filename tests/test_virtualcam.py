@@ -257,7 +257,7 @@ def test_the_cli_refuses_bad_use_in_one_line(capsys):
         assert exit_.value.code == 2 and len(lines) == 1 and message in lines[0], lines
 
 
-def test_a_tuning_file_of_the_other_platform_registers_no_camera(capsys):
+def test_a_tuning_file_of_the_other_platform_registers_no_camera(capfd):
     from picamcal.export.tuning import stock_tuning_path
 
     pisp = str(stock_tuning_path("imx477", "pisp"))
@@ -265,7 +265,7 @@ def test_a_tuning_file_of_the_other_platform_registers_no_camera(capsys):
         Options(platform="vc4", size=(640, 480)), environ={"LIBCAMERA_RPI_TUNING_FILE": pisp}
     )
     assert camera_manager.cameras == []  # as on a Pi 4: the IPA fails, the camera is not registered
-    assert 'Tuning data file target returned "pisp", expected "bcm2835"' in capsys.readouterr().err
+    assert 'Tuning data file target returned "pisp", expected "bcm2835"' in capfd.readouterr().err  # on descriptor 2
     with pytest.raises(VirtualCameraError, match='expected "bcm2835"'):
         from picamcal.virtualcam import check
 

@@ -8,11 +8,14 @@ per pixel. The modes (:class:`picamcal.modes.Mode`) are steps along it: ``uncorr
 only), ``flat`` (the white becomes 1.0 everywhere), ``centre`` (then ``U``, the paper's recommended
 correction) and ``pure`` (then ``Cx U``). Without a mode, the best the calibration does (:func:`choose_mode`).
 
-Engines (the ``engine`` argument of :func:`correct`): ``numba`` and ``numpy`` run the fused
-full-resolution pass of :mod:`picamcal.kernels` (no full-resolution gain or matrix field in memory;
-the two agree to float32 rounding); ``reference`` is the plain implementation above, with
-colour-demosaicing and dense spline matrices. All three use the same interpolant (the not-a-knot
-cubic spline through the bin centres, which the kernels evaluate in its local B-spline form).
+Engines (the ``engine`` argument of :func:`correct`): ``c``, ``numba`` and ``numpy`` run the fused
+full-resolution pass of :mod:`picamcal.kernels`, three implementations of one float32 arithmetic (no
+full-resolution gain or matrix field in memory; the uint16 codes agree bit for bit, the float32 values to
+the last bit or an ulp): ``c`` is compiled once per installation by the system's C compiler
+(:mod:`picamcal.ckernel`) and starts fastest, ``numba`` needs numba, ``numpy`` needs neither. ``reference``
+is the plain implementation above, with colour-demosaicing and dense spline matrices. All use the same
+interpolant (the not-a-knot cubic spline through the bin centres, which the kernels evaluate in its local
+B-spline form).
 """
 
 from __future__ import annotations
@@ -25,7 +28,8 @@ from numpy.typing import DTypeLike
 
 from .bayer import bin_centres, bin_sites, block_mean, centre_region, sites_to_channels
 from .calibration import Calibration
-from .errors import PicamcalError
+from .ckernel import correct_c
+from .errors import KernelBuildError, PicamcalError
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from .kernels import (
     CorrectionFields,
@@ -43,7 +47,7 @@ from .raw.processed import ProcessedImage
 #: Rows per block when applying the matrix field, to bound memory (9 float32 planes per block).
 _ROW_BLOCK = 256
 #: Values of :func:`correct`'s ``engine``.
-ENGINES = ("auto", "numba", "numpy", "reference")
+ENGINES = ("auto", "c", "numba", "numpy", "reference")
 #: How many (calibration, mode, size) correction fields :func:`correct` keeps.
 _FIELDS_CACHE_SIZE = 4
 #: uint16 code of the white reference (value 1.0) in :func:`correct`'s ``dtype=np.uint16`` output and the
@@ -87,6 +91,19 @@ def apply_matrix_field(rgb: np.ndarray, matrices: np.ndarray, centres: tuple[np.
 
     Each pixel gets ``out = U(y, x) @ rgb`` with U interpolated by cubic splines from the bin
     centres; the full-resolution field is never held in memory at once.
+
+    Examples
+    --------
+    >>> centres = (bin_centres(240, 16), bin_centres(320, 16))  # the 15 x 20 bins of a 320 x 240 image
+    >>> rgb = np.tile(np.float32([0.2, 0.5, 0.8]), (240, 320, 1))
+    >>> swap = np.broadcast_to(np.eye(3, dtype=np.float32)[::-1], (15, 20, 3, 3))  # red and blue swapped
+    >>> out = apply_matrix_field(rgb, swap, centres)
+    >>> out is rgb, out[120, 160].round(2).tolist()
+    (True, [0.8, 0.5, 0.2])
+    >>> ramp = np.broadcast_to((1 + centres[1] / 320)[:, None, None] * np.eye(3), (15, 20, 3, 3))  # left to right
+    >>> grey = apply_matrix_field(np.full((240, 320, 3), 0.5, np.float32), ramp, centres)
+    >>> grey[100, [0, 160, 319], 1].round(3).tolist()  # 0.5 (1 + x / 320) at every pixel, between the bins too
+    [0.5, 0.75, 0.998]
     """
     height, width = rgb.shape[:2]
     ax = interpolation_matrix(centres[1], np.arange(width))
@@ -255,9 +272,10 @@ def correct(
     binned : bool
         Return the bin-resolution image (one value per bin and channel, no demosaicing) instead of
         the full-resolution one.
-    engine : {"auto", "numba", "numpy", "reference"}
-        How to compute the full-resolution image (see the module docstring): ``auto`` is ``numba``
-        when numba is installed and ``numpy`` otherwise. Ignored when ``binned``.
+    engine : {"auto", "c", "numba", "numpy", "reference"}
+        How to compute the full-resolution image (see the module docstring): ``auto`` is ``c`` when the C
+        kernel is compiled or can be (a C compiler is installed), else ``numba`` when numba is installed,
+        else ``numpy``; all three give the same result. Ignored when ``binned``.
     out : ndarray, optional
         Write the full-resolution result here (C-contiguous, of the returned shape and type) instead of
         into a new array: when correcting many frames, reusing one buffer saves the cost of touching fresh
@@ -280,6 +298,8 @@ def correct(
         A mode the calibration cannot do (:func:`choose_mode`), or an image it does not fit.
     OutputError
         ``out`` is not an array of the result's shape and type.
+    KernelBuildError
+        ``engine="c"`` on a machine where the C kernel cannot be compiled (the message says what to do).
 
     Examples
     --------
@@ -331,6 +351,13 @@ def correct(
         black=np.asarray(raw.black_level, dtype=np.float32)
     )
     scale = UINT16_WHITE if to_codes else None
+    if engine in ("auto", "c"):
+        try:
+            return correct_c(raw.bayer, fields, out, code_scale=scale)
+        except KernelBuildError:
+            if engine == "c":
+                raise
+            # No C compiler, or it failed (remembered, not tried again): numba's or numpy's path gives the same.
     if engine == "numba" or (engine == "auto" and numba_available()):
         try:
             return correct_numba(raw.bayer, fields, out, code_scale=scale)

@@ -44,6 +44,10 @@ class OutputError(PicamcalError):
     """An output cannot be written (exists already, or the place is not writable)."""
 
 
+class KernelBuildError(PicamcalError):
+    """The C kernel cannot be built on this machine: no C compiler, or it failed (:mod:`picamcal.ckernel`)."""
+
+
 def closest(value: str, choices: Iterable[str], cutoff: float = 0.6, *, parts: bool = False) -> str | None:
     """The choice nearest ``value``, compared case-insensitively, for a "did you mean"; None if none is close.
 

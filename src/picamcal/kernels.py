@@ -18,22 +18,32 @@ The output is either the (H, W, 3) float32 image or its uint16 codes, interleave
 ``round(value * scale)`` clipped to 0..65535 with NaN as 0 (:func:`encode_codes`), written row by row
 without a float32 image at full resolution.
 
-Two implementations with the same float32 arithmetic in the same order, so they give the same
-result to the last bit or nearly (compilers may still differ by an ulp):
+Three implementations of one arithmetic: the same float32 operations in the same order, so they give
+the same result to the last bit (the uint16 codes always; the float32 values on the machines measured, and
+within an ulp or so where a compiler rounds one operation differently):
 
+``c``
+    :mod:`picamcal.ckernel`: ``_kernel.c``, compiled by the system's C compiler the first time it is
+    needed and cached on disk, then loaded in a millisecond with ctypes; POSIX threads take blocks of
+    rows one at a time. No numba: the fastest start for a command that corrects one file.
 ``numba``
     a parallel kernel (``prange`` over blocks of rows, handed out one block at a time so that a
     core slowed by other work takes fewer), compiled on first use and cached on disk. numba is
-    optional and imported only when this kernel is first asked for.
+    optional and imported only when this kernel is first asked for (its runtime then takes about
+    half a second to load the cached kernel).
 ``numpy``
-    row blocks with array slicing, for where numba is not installed (32-bit Raspberry Pi OS has
-    no numba wheels).
+    row blocks with array slicing, for where there is neither a C compiler nor numba (32-bit
+    Raspberry Pi OS has no numba wheels).
+
+The two parallel kernels use :func:`kernel_threads` threads (:func:`set_kernel_threads`).
 """
 
 from __future__ import annotations
 
 import functools
 import importlib.util
+import os
+from numbers import Integral
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -48,6 +58,8 @@ NUMPY_BLOCK_ROWS = 64
 NUMBA_BLOCK_ROWS = 64
 #: Largest uint16 code.
 _CODE_MAX = 65535
+#: Threads of the parallel kernels, as :func:`set_kernel_threads` set it; None for :func:`available_cores`.
+_threads: int | None = None
 
 _F05 = np.float32(0.5)
 _F15 = np.float32(1.5)
@@ -137,6 +149,56 @@ class CorrectionFields(NamedTuple):
     matrices: np.ndarray | None
     matrix_rows: Taps
     matrix_cols: Taps
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity), else the machine's.
+
+    Examples
+    --------
+    >>> available_cores() >= 1
+    True
+    """
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def set_kernel_threads(threads: int | None) -> None:
+    """Set how many threads the parallel kernels (C and numba) use in this process; None for every available core.
+
+    A process pool shares the cores among its workers this way (:mod:`picamcal.batch.executors`).
+
+    Raises
+    ------
+    ValueError
+        ``threads`` is not a positive whole number.
+
+    Examples
+    --------
+    >>> set_kernel_threads(1)
+    >>> kernel_threads()
+    1
+    >>> set_kernel_threads(None)
+    >>> kernel_threads() == available_cores()
+    True
+    """
+    global _threads
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, Integral) or threads < 1):
+        raise ValueError(f"kernel threads must be a positive whole number or None, not {threads!r}")
+    _threads = None if threads is None else int(threads)
+
+
+def kernel_threads() -> int:
+    """How many threads the parallel kernels use: what :func:`set_kernel_threads` set, else :func:`available_cores`.
+
+    Examples
+    --------
+    >>> kernel_threads() >= 1
+    True
+    """
+    return _threads if _threads is not None else available_cores()
 
 
 @functools.cache
@@ -612,8 +674,8 @@ def correct_numba(
 
     The first call in a process imports numba and loads the compiled kernel from numba's disk cache (a
     fraction of a second), or compiles it (about 10 s) when there is none; later calls run at full speed.
-    Each thread works in 5 mosaic rows, a few RGB rows and one row of spline coefficients, allocated
-    here; nothing else is allocated besides ``out``.
+    It runs on :func:`kernel_threads` threads. Each thread works in 5 mosaic rows, a few RGB rows and one
+    row of spline coefficients, allocated here; nothing else is allocated besides ``out``.
 
     Parameters
     ----------
@@ -655,7 +717,11 @@ def correct_numba(
     kernel = _numba_kernel()
     height, width = bayer.shape
     out = output_array(out, height, width, np.float32 if code_scale is None else np.uint16)
-    threads = numba.get_num_threads()
+    # numba's own runtime setting, not NUMBA_NUM_THREADS (numba re-reads its environment when it compiles and refuses
+    # a value that differs from the threads it has started); it holds for the calling thread only, so set it here.
+    # numba.config sets its attributes at import from the environment, so they are not in its stubs.
+    threads = min(kernel_threads(), int(getattr(numba.config, "NUMBA_NUM_THREADS")))  # noqa: B009
+    numba.set_num_threads(threads)
     half = width // 2
     white = np.zeros((4, 4, 4), np.float32) if fields.white is None else fields.white
     matrices = np.zeros((9, 4, 4), np.float32) if fields.matrices is None else fields.matrices

@@ -29,7 +29,9 @@ from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.context import BaseContext
 from typing import Any
 
+from ..ckernel import c_available
 from ..errors import PicamcalError
+from ..kernels import available_cores, numba_available, set_kernel_threads
 from .stopping import Interrupt
 from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs, set_stop, stop_on_signal
 
@@ -40,28 +42,19 @@ MAX_CHUNK = 8
 _POLL_S = 0.1
 
 
-def available_cores() -> int:
-    """The cores this process may run on (its CPU affinity), else the machine's.
-
-    Examples
-    --------
-    >>> available_cores() >= 1
-    True
-    """
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
-
-
 def _pool_context() -> BaseContext:
     """forkserver where there is one: workers start clean (fork would copy this process's threads and locks,
     unsafe with numba, zarr's event loop or a GUI), and fast (forked from a server that preloaded picamcal)."""
     if "forkserver" in multiprocessing.get_all_start_methods():
         context = multiprocessing.get_context("forkserver")
-        # What every worker imports (the raw reader, the kernel's numba), once in the server rather than in each
-        # worker; not colour-demosaicing (a second to import), which only the reference engine needs.
-        context.set_forkserver_preload(["picamcal.batch", "picamcal.raw", "rawpy", "numba"])
+        # What every worker imports (the raw reader, the kernel), once in the server rather than in each worker; not
+        # colour-demosaicing (a second to import), which only the reference engine needs. The C kernel is compiled
+        # here if it is not yet (once, rather than by every worker at once), and numba preloaded only for workers
+        # that have no C kernel to use.
+        preload = ["picamcal.batch", "picamcal.raw", "rawpy", "picamcal.ckernel"]
+        if not c_available() and numba_available():
+            preload.append("numba")
+        context.set_forkserver_preload(preload)
         return context
     return multiprocessing.get_context("spawn")
 
@@ -195,20 +188,12 @@ def _init_worker(threads: int, stop: Any) -> None:
     them on any signal (``stop``, an event it sets) and decides whether each finishes or drops its file in flight.
     A SIGTERM sent to the whole group (systemd, ``timeout``) ends the workers at once, as the process that started
     them would after its grace; their temporaries are then stale, and it removes them.
-    numba's parallel kernels would otherwise use a thread per core in every
-    worker. numba's own runtime setting, not NUMBA_NUM_THREADS: numba re-reads its environment when it compiles
-    and refuses a value that differs from the threads it has started.
+    The parallel kernels (C or numba) would otherwise use a thread per core in every worker.
     """
     exit_with_parent()
     signal.signal(signal.SIGINT, stop_on_signal)
     set_stop(stop)
-    try:
-        import numba
-    except ImportError:  # no numba (32-bit Raspberry Pi OS): the numpy path runs in one thread anyway
-        return
-    # numba.config sets its attributes at import from the environment, so they are not in its stubs.
-    most = int(getattr(numba.config, "NUMBA_NUM_THREADS"))  # noqa: B009
-    numba.set_num_threads(min(threads, most))
+    set_kernel_threads(threads)
 
 
 def exit_with_parent() -> None:

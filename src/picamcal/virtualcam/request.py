@@ -41,12 +41,15 @@ def _threshold(category: str) -> int:
 
 
 def log(level: str, category: str, source: str, message: str) -> None:
-    """A line as libcamera logs it on stderr (``[time] [pid] LEVEL Category file message``)."""
+    """A line as libcamera logs it (``[time] [pid] LEVEL Category file message``): to descriptor 2, as libcamera's C++
+    logger writes it, so that a program that silences what C libraries print silences it too."""
     if _LEVELS.index(level) < _threshold(category):
         return
     seconds = time.monotonic()
     stamp = f"{int(seconds // 3600)}:{int(seconds % 3600 // 60):02d}:{seconds % 60:012.9f}"
-    print(f"[{stamp}] [{os.getpid()}] {level:>5} {category} {source} {message}", file=sys.stderr, flush=True)
+    line = f"[{stamp}] [{os.getpid()}] {level:>5} {category} {source} {message}\n"
+    sys.stderr.flush()  # after what Python printed before it
+    os.write(2, line.encode())
 
 
 def fail(what: str, code: int) -> RuntimeError:
