@@ -35,7 +35,7 @@ from .executors import Dask, InProcess, Pool, Runner, available_cores, connect
 from .inputs import expand_inputs, is_pattern
 from .options import BatchOptions
 from .stopping import Interrupt
-from .worker import Job, Settings
+from .worker import Job, Settings, keep_calibration
 
 PathArg = str | os.PathLike[str]
 
@@ -252,6 +252,7 @@ def _run(
             runner = Dask(settings, client)
         elif options.workers == 0 or (options.workers is None and len(jobs) == 1):  # a pool for one file: overhead
             runner = InProcess(settings)
+            keep_calibration(settings, cal)
         else:
             runner = Pool(settings, max(1, min(options.workers or available_cores(), len(jobs))))
         interrupt.working()

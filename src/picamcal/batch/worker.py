@@ -120,6 +120,20 @@ def _cached(key: tuple, load: Callable[[], _T]) -> _T:
     return _CACHE[key]
 
 
+def keep_calibration(settings: Settings, calibration: Calibration) -> None:
+    """Hand this process's pipeline the calibration the batch has loaded already (in-process runs: one read)."""
+    _cached(("calibration", settings.calibration, settings.calibration_sha256), lambda: calibration)
+
+
+def forget() -> None:
+    """Forget the calibrations, whites and tuning files loaded so far, and their correction fields, as a new process
+    starts (benchmarks/bench_commands.py times a command's work so)."""
+    from ..correct import _cached_fields
+
+    _CACHE.clear()
+    _cached_fields.cache_clear()
+
+
 def calibration_of(settings: Settings) -> Calibration:
     """The batch's calibration, loaded once per worker, refused if the file is not the one the batch started with."""
 
