@@ -5,10 +5,11 @@ Usage: python3 benchmarks/run.py [--sensor imx219] [--repeats 5] [--only NAME ..
 It times calibration, raw reading, the matrix inversion and the wheel search itself, then runs the other
 benchmarks of this folder one after the other: start-up (bench_startup), single commands beside their work
 (bench_commands), correction (bench_correct), batches
-file to file (bench_batch) and live unmixing (bench_live); `--only calibration startup ...` picks some. With
+file to file (bench_batch), live unmixing (bench_live) and the virtual camera's frame rate (bench_virtualcam);
+`--only calibration startup ...` picks some. With
 `--write-docs` it also writes everything it printed into docs/benchmarks.md, the documentation site's Benchmarks
 page, between the markers of its "The figures" section, so that the page's figures are those of one run. The whole
-run takes about 12 minutes on a 2-core machine.
+run takes about 13 minutes on a 2-core machine.
 
 These machines are shared and noisy, so each figure is the median of several runs and is printed
 beside a baseline timed in the same process (absolute times drift from run to run; ratios less so).
@@ -167,6 +168,7 @@ SUITES = {
     "correct": "bench_correct",
     "batch": "bench_batch",
     "live": "bench_live",
+    "virtualcam": "bench_virtualcam",
 }
 #: The documentation site's Benchmarks page, where ``--write-docs`` puts the figures.
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
