@@ -270,3 +270,34 @@ def test_a_tuning_file_of_the_other_platform_registers_no_camera(capfd):
         from picamcal.virtualcam import check
 
         check(Options(platform="vc4"), environ={"LIBCAMERA_RPI_TUNING_FILE": pisp})
+
+
+def test_row_blocks_run_on_while_the_interpreter_exits():
+    # The virtual camera's frame thread (a daemon) goes on making frames while a script's interpreter exits, when
+    # concurrent.futures takes no new work: the blocks then run in the frame thread, and no frame fails.
+    code = textwrap.dedent(
+        """
+        import sys, threading, time
+        import numpy as np
+        from picamcal._rows import in_row_blocks
+
+        rows = np.zeros(4096)
+
+        def fill(start, stop):
+            rows[start:stop] += 1
+
+        def frames():
+            while True:
+                try:
+                    in_row_blocks(fill, len(rows))
+                except Exception as exc:
+                    print("failed:", repr(exc), file=sys.stderr, flush=True)
+                    return
+
+        threading.Thread(target=frames, daemon=True).start()
+        time.sleep(0.3)
+        """
+    )
+    for _ in range(3):
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0 and "failed" not in done.stderr, done.stderr

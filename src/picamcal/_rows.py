@@ -49,8 +49,13 @@ def in_row_blocks(run: Callable[[int, int], None], rows: int) -> None:
         run(0, rows)
         return
     first, *others = itertools.pairwise(np.linspace(0, rows, blocks + 1).round().astype(int).tolist())
-    futures = [_pool().submit(run, start, stop) for start, stop in others]
+    futures = []
     try:
+        for start, stop in others:
+            try:
+                futures.append(_pool().submit(run, start, stop))
+            except RuntimeError:  # the interpreter is exiting, and concurrent.futures takes no new work: run it here
+                run(start, stop)
         run(*first)
     finally:
         for future in futures:
