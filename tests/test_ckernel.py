@@ -28,7 +28,7 @@ from picamcal import calibrate, correct
 from picamcal.ckernel import c_available, cache_dir, compiler, correct_c
 from picamcal.correct import UINT16_WHITE, correction_fields
 from picamcal.errors import KernelBuildError
-from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available, set_kernel_threads
+from picamcal.kernels import CorrectionFields, correct_numpy, numba_available, set_kernel_threads
 from picamcal.raw import PATTERNS
 from picamcal.simulate import make_camera, simulate_references, simulate_target
 
@@ -104,35 +104,6 @@ def test_blocks_of_any_height_give_the_same_image(scene, block_rows):
     np.testing.assert_array_equal(
         correct_c(target.bayer, fields, block_rows=block_rows), correct_c(target.bayer, fields)
     )
-
-
-@pytest.mark.usefixtures("compiled")
-@pytest.mark.parametrize(
-    "site_gains",
-    [
-        [np.nan, 1 / 65536, 1 / 65536, -1 / 65536],  # NaN gives 0; negatives 0; halves of a code round to even
-        [np.inf, 1 / 512, 1.0, 1 / 65536],  # infinities and values far over 2.0 give 65535
-    ],
-)
-def test_codes_of_nan_infinity_negatives_and_halves(site_gains):
-    mosaic = np.random.default_rng(5).integers(0, 1024, size=(24, 34)).astype(np.uint16)
-    unused = make_taps(np.zeros(1, np.int64), np.zeros((1, 4)))
-    fields = CorrectionFields(
-        black=np.zeros(4, np.float32),
-        channels=np.array([0, 1, 1, 2]),
-        site_gains=np.array(site_gains, np.float32),
-        white=None,
-        white_rows=unused,
-        matrices=None,
-        matrix_rows=unused,
-        matrix_cols=unused,
-    )
-    with np.errstate(invalid="ignore"):  # infinity minus infinity in the demosaic: NaN, on purpose
-        rgb = correct_numpy(mosaic, fields)
-        codes = correct_numpy(mosaic, fields, code_scale=UINT16_WHITE)
-    assert np.isnan(rgb).any() and (rgb < 0).any() and np.any(np.modf(rgb * UINT16_WHITE)[0] == 0.5)
-    np.testing.assert_array_equal(correct_c(mosaic, fields), rgb)
-    np.testing.assert_array_equal(correct_c(mosaic, fields, code_scale=UINT16_WHITE), codes)
 
 
 @pytest.mark.usefixtures("compiled")

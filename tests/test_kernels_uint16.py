@@ -17,7 +17,7 @@ import pytest
 import tifffile
 
 from picamcal import calibrate, correct
-from picamcal.ckernel import c_available
+from picamcal.ckernel import c_available, correct_c
 from picamcal.correct import UINT16_WHITE
 from picamcal.errors import OutputError
 from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available
@@ -90,11 +90,16 @@ def test_codes_of_nan_infinity_negatives_and_halves(site_gains):
     assert np.any(np.modf(rgb * UINT16_WHITE)[0] == 0.5)
     expected = encode_uint16(rgb)
     np.testing.assert_array_equal(numpy_codes, expected)
+    compiled = []
     if numba_available():
         from picamcal.kernels import correct_numba
 
-        np.testing.assert_array_equal(correct_numba(mosaic, fields), rgb)  # the same floats first
-        np.testing.assert_array_equal(correct_numba(mosaic, fields, code_scale=UINT16_WHITE), expected)
+        compiled.append(correct_numba)
+    if c_available():
+        compiled.append(correct_c)
+    for kernel in compiled:
+        np.testing.assert_array_equal(kernel(mosaic, fields), rgb)  # the same floats first
+        np.testing.assert_array_equal(kernel(mosaic, fields, code_scale=UINT16_WHITE), expected)
 
 
 @pytest.mark.parametrize("engine", ENGINES)
