@@ -15,27 +15,20 @@ from __future__ import annotations
 
 import functools
 import itertools
-import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from .kernels import available_cores
+
 #: Fewer rows than this a block are not worth a thread.
 MIN_BLOCK_ROWS = 64
 
 
-def cores() -> int:
-    """The CPUs this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
-
 @functools.cache
 def _pool() -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(max(1, cores() - 1), thread_name_prefix="picamcal-rows")
+    return ThreadPoolExecutor(max(1, available_cores() - 1), thread_name_prefix="picamcal-rows")
 
 
 def in_row_blocks(run: Callable[[int, int], None], rows: int) -> None:
@@ -44,7 +37,7 @@ def in_row_blocks(run: Callable[[int, int], None], rows: int) -> None:
     The first block runs in the calling thread, the others in a shared pool; it returns when all are done and
     raises a failed block's exception. Where there is one core, or too few rows, it is ``run(0, rows)``.
     """
-    blocks = max(1, min(cores(), rows // MIN_BLOCK_ROWS))
+    blocks = max(1, min(available_cores(), rows // MIN_BLOCK_ROWS))
     if blocks == 1:
         run(0, rows)
         return
