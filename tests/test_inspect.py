@@ -57,3 +57,10 @@ def test_a_calibration_is_named_as_such(tmp_path):
     result = run("inspect", str(tmp_path / "cal.npz"), "--json")
     assert result.returncode == 0
     assert json.loads(result.stdout)[0]["format"] == "picamcal calibration (imx219 320x240)"
+    # What the calibration says of itself: a flat field from a white, and the light its references were taken under.
+    white = ["calibrate", "--white", str(sim / "white.dng"), "--light", "screen", "--out", str(tmp_path / "flat.npz")]
+    assert run(*white).returncode == 0
+    result = run("inspect", str(tmp_path / "flat.npz"), "--json")
+    assert json.loads(result.stdout)[0]["format"] == (
+        "picamcal calibration (imx219 320x240, a flat field from a white, light: screen)"
+    )

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from picamcal import CalibrationInputError, calibrate
+from picamcal import CalibrationInputError, PicamcalWarning, calibrate
 from picamcal.calibration import LIGHTS
 from picamcal.manifest import ILLUMINATOR_LIGHTS, AcquisitionError
 from picamcal.references import find_references, read_manifest, reference_light, role_of
@@ -82,6 +82,18 @@ def test_a_white_and_a_numbered_white_are_both_frames_of_the_white(tmp_path):
     for name in ("white.dng", "white2.dng", "black.dng"):
         (tmp_path / name).write_bytes(b"x")
     assert [p.name for p in find_references(tmp_path)["white"]] == ["white.dng", "white2.dng"]
+
+
+def test_a_name_of_two_references_is_passed_over_with_a_warning(tmp_path):
+    for name in ("white.dng", "white_red.dng", "notes_black_white.txt", "target.dng"):
+        (tmp_path / name).write_bytes(b"")
+    with pytest.warns(PicamcalWarning) as caught:
+        found = find_references(tmp_path)
+    assert {role: path.name for role, path in found.items()} == {"white": "white.dng"}
+    # Only reference files are looked at: the .txt and the target say nothing.
+    assert [str(w.message) for w in caught] == [
+        "white_red.dng names white and red: passed over (name a file for one reference)"
+    ]
 
 
 def test_a_file_given_as_the_folder_is_named_for_what_it_is(tmp_path, linear_refs):
@@ -186,7 +198,7 @@ def test_a_manifest_lists_extra_colours_as_references(tmp_path):
 
 def test_the_light_of_each_illuminator_is_one_the_accuracy_figures_know():
     # Every illuminator picamcal acquire opens gives a known light, but the manual one (the user sets anything).
-    assert set(ILLUMINATOR_LIGHTS) | {"manual"} == {"serial", "gpio", "sim", "screen", "manual"}
+    assert set(ILLUMINATOR_LIGHTS) | {"manual"} == {"serial", "gpio", "sim", "virtual", "screen", "manual"}
     assert set(ILLUMINATOR_LIGHTS.values()) <= set(LIGHTS)
 
 

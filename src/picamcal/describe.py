@@ -153,7 +153,12 @@ def what_else(path: Path) -> str | None:
             import zipfile
 
             return "NumPy .npz archive (not a raw image or a calibration)" if zipfile.is_zipfile(path) else None
-        return f"picamcal calibration ({cal.sensor or 'unknown sensor'} {cal.width}x{cal.height})"
+        about = [f"{cal.sensor or 'unknown sensor'} {cal.width}x{cal.height}"]
+        if cal.kind == "flat":
+            about.append("a flat field from a white")
+        if cal.light:
+            about.append(f"light: {cal.light}")  # the workflow whose accuracy the report expects
+        return f"picamcal calibration ({', '.join(about)})"
     if head not in (b"{", b"["):
         return None
     try:

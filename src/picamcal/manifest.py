@@ -55,10 +55,10 @@ FRAME_FORMAT = "picamcal-acquisition-frame"
 MANIFEST_VERSION = 1
 _MAX_MANIFEST_BYTES = 16 << 20
 #: The light each kind of illuminator gives (the manifest's ``illuminator.kind`` -> a name of
-#: :data:`picamcal.calibration.LIGHTS`): the jig's LEDs, driven over a serial port, from a Pi's pin or simulated, or a
-#: screen (shown in a window or by the user, seen by a real or a simulated camera). A ``manual`` illuminator is
-#: whatever the user set by hand: its light is not known.
-ILLUMINATOR_LIGHTS = {"serial": "jig", "gpio": "jig", "sim": "jig", "screen": "screen"}
+#: :data:`picamcal.calibration.LIGHTS`): the jig's LEDs, driven over a serial port, from a Pi's pin, simulated or
+#: the virtual camera's, or a screen (shown in a window or by the user, seen by a real or a simulated camera). A
+#: ``manual`` illuminator is whatever the user set by hand: its light is not known.
+ILLUMINATOR_LIGHTS = {"serial": "jig", "gpio": "jig", "sim": "jig", "virtual": "jig", "screen": "screen"}
 
 
 class AcquisitionError(PicamcalError):

@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 import os
 import re
+import warnings
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, NoReturn
 
-from .errors import CalibrationInputError, PicamcalError, closest
+from .errors import CalibrationInputError, PicamcalError, PicamcalWarning, closest
 from .manifest import MANIFEST_NAME, AcquisitionError, load_manifest, manifest_light
 from .raw import HEADLESS_SUFFIXES, RAW_SUFFIXES, RawImage
 
@@ -95,12 +96,17 @@ def role_of(name: str) -> str | None:
             return "black" if r == 0 else "white"
         lit = [role for role, v in zip(COLOURS, (r, g, b), strict=True) if v > 0]
         return lit[0] if len(lit) == 1 else None
+    found = _roles_named(stem)
+    return found[0] if len(found) == 1 else None
+
+
+def _roles_named(stem: str) -> list[str]:
+    """The roles a file name's words name (``white_red`` names two, and so stands for none)."""
     words = set(re.split(r"[^a-z0-9]+", stem))
     if "colour" in words:
-        return None
+        return []
     # A frame number may follow the role without a separator (white2, as a camera app counts its shots).
-    found = [role for role in ROLES if any(word.rstrip("0123456789") == role for word in words)]
-    return found[0] if len(found) == 1 else None
+    return [role for role in ROLES if any(word.rstrip("0123456789") == role for word in words)]
 
 
 def _natural(path: Path) -> tuple[list, str]:
@@ -218,6 +224,9 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
     >>> _ = Path("colour_cyan.dng").write_bytes(b"")
     >>> find_references(".")["colour_cyan"].name
     'colour_cyan.dng'
+
+    A name that names two references is passed over with a warning (:class:`~picamcal.errors.PicamcalWarning`):
+    ``white_red.dng`` is neither the white nor the red.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -234,6 +243,14 @@ def find_references(folder: str | Path, *, in_situ: bool = False) -> dict[str, P
         role = role_of(path.name) if path.suffix.lower() in _REFERENCE_SUFFIXES and path.is_file() else None
         if role and not (in_situ and (role in COLOURS or colour_name(role))):
             found.setdefault(role, []).append(path)
+        elif role is None and path.suffix.lower() in _REFERENCE_SUFFIXES:
+            named = _roles_named(path.stem.lower())
+            if len(named) > 1:  # not silently: the user meant it as one of them
+                warnings.warn(
+                    f"{path.name} names {' and '.join(named)}: passed over (name a file for one reference)",
+                    PicamcalWarning,
+                    stacklevel=2,
+                )
     if "white" not in found:
         what = "white" if found else "white, red, green, blue or black"
         raise CalibrationInputError(
