@@ -11,16 +11,15 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import os
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from picamcal import load_calibration
+from test_virtualcam_picamera2 import run_script, under_virtual_camera
 
 pytestmark = [
     pytest.mark.slow,
@@ -34,21 +33,6 @@ ROOT = Path(__file__).resolve().parents[1]
 PLATFORMS = ("pisp", "vc4")
 SIZE = "640x480"
 LIVE = [sys.executable, str(ROOT / "examples" / "live_preview.py")]
-
-
-def under_virtual_camera(
-    command: list[str], *options: str, cwd: Path, env: dict[str, str] | None = None, timeout: float = 600
-) -> subprocess.CompletedProcess:
-    """``picamcal virtual-camera OPTIONS -- COMMAND``; libcamera's INFO lines left out."""
-    full = [sys.executable, "-m", "picamcal", "virtual-camera", *options, "--", *command]
-    environ = dict(os.environ, LIBCAMERA_LOG_LEVELS="*:WARN", **(env or {}))
-    return subprocess.run(full, capture_output=True, text=True, timeout=timeout, cwd=cwd, env=environ)
-
-
-def run_python(tmp_path: Path, code: str, *options: str, env: dict[str, str] | None = None):
-    script = tmp_path / "script.py"
-    script.write_text(textwrap.dedent(code))
-    return under_virtual_camera([sys.executable, str(script)], *options, cwd=tmp_path, env=env)
 
 
 def last_json(result: subprocess.CompletedProcess) -> dict:
@@ -75,7 +59,7 @@ def test_the_acquisition_camera_runs_with_its_neutral_tuning_in_force(tmp_path, 
     # of the white then shows the optics' vignetting. Listing the cameras in the same process first started
     # libcamera's camera manager with the stock tuning, and the neutral one was silently ignored.
     ours = last_json(
-        run_python(
+        run_script(
             tmp_path,
             MAIN_RATIO
             + """
@@ -94,7 +78,7 @@ camera.close()
         )
     )
     stock = last_json(
-        run_python(
+        run_script(
             tmp_path,
             MAIN_RATIO
             + """
@@ -131,7 +115,7 @@ def test_stock_tuning_files_are_those_picamera2_finds(tmp_path):
             algorithm["rpi.black_level"]["black_level"] = 4321
     (folder / "imx219.json").write_text(json.dumps(tuning))
     result = last_json(
-        run_python(
+        run_script(
             tmp_path,
             """
 import json
@@ -152,7 +136,7 @@ print(json.dumps({"same": load_tuning(path) == theirs, "path": str(path)}))
 def test_the_ov5647s_gain_steps_are_not_taken_for_a_camera_that_ignores_its_controls(tmp_path):
     # The OV5647 applies floor(16 g) / 16: a gain of 1.06 is 1.0, 5.7 % off, which the 5 % tolerance refused.
     result = last_json(
-        run_python(
+        run_script(
             tmp_path,
             """
 import json
@@ -173,7 +157,7 @@ camera.close()
 
 def test_a_tuning_for_the_other_pi_is_one_clear_line(tmp_path):
     # libcamera registers no camera with it, and picamera2 fails with a bare IndexError.
-    result = run_python(
+    result = run_script(
         tmp_path,
         """
 from picamcal.acquire.cameras import Picamera2Camera
@@ -196,7 +180,7 @@ except Exception as exc:
 
 def test_picamera2s_spelling_of_the_compressed_raw_format_is_read(tmp_path):
     result = last_json(
-        run_python(
+        run_script(
             tmp_path,
             """
 import json
@@ -220,7 +204,7 @@ picam2.close()
 def test_a_mismatched_live_stream_is_kept_as_the_unmixers_error_and_the_camera_runs_on(tmp_path):
     # An exception raised in pre_callback runs in picamera2's camera thread: the frames stopped (or Qt aborted).
     result = last_json(
-        run_python(
+        run_script(
             tmp_path,
             """
 import json
@@ -374,7 +358,7 @@ print(json.dumps(out))
 def test_the_acquisition_camera_configures_sets_captures_and_notices_a_stalled_camera(tmp_path, platform, raw):
     # The HQ camera (IMX477, mounted rotated: BGGR) at its full 4056x3040 mode, shrunk to 1014x760 pixels: its 12-bit
     # raw stream unpacked (16-bit on a Pi 5), the mode's limits, the controls applied before the frame is kept.
-    out = last_json(run_python(tmp_path, ADAPTER, f"--platform={platform}", "--sensor=imx477", "--size=1014x760"))
+    out = last_json(run_script(tmp_path, ADAPTER, f"--platform={platform}", "--sensor=imx477", "--size=1014x760"))
     assert out["model"] == "imx477" and out["describe"]["tuning"] == "stock with static unity rpi.alsc (n_iter 0)"
     assert out["raw"] == [raw, [1014, 760]]
     assert out["sensor"] == {"output_size": [1014, 760], "bit_depth": 12}
@@ -389,7 +373,7 @@ def test_no_camera_is_one_line(tmp_path):
     # libcamera registers no camera whose tuning file is for the other platform (a LIBCAMERA_RPI_TUNING_FILE left in
     # the environment): none is found.
     other = ROOT / "src/picamcal/data/libcamera-tuning/pisp/imx219.json"
-    result = run_python(
+    result = run_script(
         tmp_path,
         f"""
 import os
@@ -411,5 +395,5 @@ except CameraError as exc:
 
 def test_a_stock_file_with_a_trailing_comma_opens_the_camera(tmp_path):
     # The Pi 5's imx283.json has a trailing comma, which picamera2's json reader (load_tuning_file) refuses.
-    out = last_json(run_python(tmp_path, ADAPTER, "--platform=pisp", "--sensor=imx283", "--size=1376x920"))
+    out = last_json(run_script(tmp_path, ADAPTER, "--platform=pisp", "--sensor=imx283", "--size=1376x920"))
     assert out["model"] == "imx283" and out["raw"][1] == [1376, 920]

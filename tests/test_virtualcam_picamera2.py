@@ -90,13 +90,22 @@ json.dump(out, sys.stdout)
 """
 
 
-def run_script(tmp_path: Path, code: str, *options: str, args: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
-    """Run a Python script under ``picamcal virtual-camera OPTIONS``; libcamera's INFO lines are left out."""
+def under_virtual_camera(
+    command: list[str], *options: str, cwd: Path, env: dict[str, str] | None = None, timeout: float = 600
+) -> subprocess.CompletedProcess:
+    """``picamcal virtual-camera OPTIONS -- COMMAND``; libcamera's INFO lines are left out."""
+    full = [sys.executable, "-m", "picamcal", "virtual-camera", *options, "--", *command]
+    environ = dict(os.environ, LIBCAMERA_LOG_LEVELS="*:WARN", **(env or {}))
+    return subprocess.run(full, capture_output=True, text=True, timeout=timeout, cwd=cwd, env=environ)
+
+
+def run_script(
+    tmp_path: Path, code: str, *options: str, args: tuple[str, ...] = (), env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess:
+    """Run a Python script under ``picamcal virtual-camera OPTIONS``."""
     script = tmp_path / "script.py"
     script.write_text(textwrap.dedent(code))
-    command = [sys.executable, "-m", "picamcal", "virtual-camera", *options, "--", sys.executable, str(script), *args]
-    env = dict(os.environ, LIBCAMERA_LOG_LEVELS="*:WARN")
-    return subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
+    return under_virtual_camera([sys.executable, str(script), *args], *options, cwd=tmp_path, env=env)
 
 
 @pytest.mark.parametrize("platform", ["pisp", "vc4"])

@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import KernelBuildError
+from ._atomic import atomic_path
+from .errors import KernelBuildError, OutputError
 from .kernels import CorrectionFields, kernel_threads, output_array
 
 #: The kernel's source, shipped in the package.
@@ -165,34 +166,41 @@ def _compiler_identity(command: list[str]) -> str:
     return f"{found}:{status.st_mtime_ns}:{status.st_size}"
 
 
-def _compile(command: list[str], source: bytes, folder: Path, library: Path) -> str | None:
-    """Compile ``source`` into ``library`` (through a temporary file in ``folder``); the compiler's message if it
-    failed, else None. Raises OSError when ``folder`` cannot be written."""
+class _CompileFailed(Exception):
+    """The compiler's message, raised inside :func:`~picamcal._atomic.atomic_path` so that its temporary goes."""
+
+
+def _compile(command: list[str], source: bytes, library: Path) -> str | None:
+    """Compile ``source`` into ``library``, written whole or not at all (:func:`~picamcal._atomic.atomic_path`, whose
+    temporaries a killed compile leaves are removed later); the compiler's message if it failed, else None.
+
+    Raises
+    ------
+    OutputError
+        ``library``'s folder cannot be written.
+    """
     import subprocess
 
-    descriptor, temporary = tempfile.mkstemp(dir=folder, prefix=f".{library.stem}-", suffix=".tmp")
-    os.close(descriptor)
     try:
-        try:
-            result = subprocess.run(
-                [*command, *FLAGS, "-x", "c", "-o", temporary, "-"],
-                input=source,
-                capture_output=True,
-                timeout=600,
-            )
-        except OSError as exc:
-            return f"cannot run {command[0]} ({exc.strerror or exc})"
-        except subprocess.TimeoutExpired:
-            return f"{shlex.join(command)} did not finish in 10 minutes"
-        if result.returncode != 0:
-            message = result.stderr.decode("utf-8", "replace").strip()
-            return message or f"{shlex.join(command)} exited with status {result.returncode}"
-        os.chmod(temporary, 0o755)  # as a compiler's output usually is (the temporary file was private)
-        os.replace(temporary, library)
-        return None
-    finally:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
+        with atomic_path(library) as temporary:
+            try:
+                result = subprocess.run(
+                    [*command, *FLAGS, "-x", "c", "-o", str(temporary), "-"],
+                    input=source,
+                    capture_output=True,
+                    timeout=600,
+                )
+            except OSError as exc:
+                raise _CompileFailed(f"cannot run {command[0]} ({exc.strerror or exc})") from None
+            except subprocess.TimeoutExpired:
+                raise _CompileFailed(f"{shlex.join(command)} did not finish in 10 minutes") from None
+            if result.returncode != 0:
+                message = result.stderr.decode("utf-8", "replace").strip()
+                raise _CompileFailed(message or f"{shlex.join(command)} exited with status {result.returncode}")
+            os.chmod(temporary, 0o755)  # as a compiler's output usually is
+    except _CompileFailed as failed:
+        return str(failed)
+    return None
 
 
 def _first_error(message: str) -> str:
@@ -258,8 +266,8 @@ def _library() -> ctypes.CDLL | KernelBuildError:
             pass  # no failure remembered
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            message = _compile(command, source, folder, library)
-        except OSError:
+            message = _compile(command, source, library)
+        except (OSError, OutputError):
             return _build_privately(command, source, library.name)
         if message is None:
             try:
@@ -269,8 +277,9 @@ def _library() -> ctypes.CDLL | KernelBuildError:
         else:
             problem = _compile_failure(command, message)
         try:
-            _write_atomically(marker, f"{problem}\n{message}")
-        except OSError:
+            with atomic_path(marker) as temporary:
+                temporary.write_text(f"{problem}\n{message}", encoding="utf-8")
+        except OutputError:
             return _failed(problem, None)
         return _failed(problem, marker)
 
@@ -280,26 +289,15 @@ def _build_privately(command: list[str], source: bytes, name: str) -> ctypes.CDL
     try:
         with tempfile.TemporaryDirectory(prefix="picamcal-kernel-") as private:
             library = Path(private) / name
-            message = _compile(command, source, Path(private), library)
+            message = _compile(command, source, library)
             if message is not None:
                 return _failed(_compile_failure(command, message), None)
             try:
                 return _open(library)  # loaded: the mapping outlives the file
             except OSError as exc:
                 return _failed(_load_failure(library, exc), None)
-    except OSError as exc:
+    except (OSError, OutputError) as exc:
         return _failed(_compile_failure(command, f"error: no folder to compile in ({exc})"), None)
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}-", suffix=".tmp")
-    try:
-        with os.fdopen(descriptor, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(temporary, path)
-    finally:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
 
 
 def c_available() -> bool:

@@ -392,8 +392,7 @@ Raspberry Pi 4 or earlier (vc4, target bcm2835): export the tuning again with --
     label = {value: key for key, value in TARGET_NAMES.items()}[target]
     raise CameraError(
         f"{name} is for {names.get(given, 'no Raspberry Pi')} (target {given or 'missing'}), but this is "
-        f"{names[target]} ({label}, target {target}): "
-        f"export the tuning again with --target {label}"
+        f"{names[target]} ({label}, target {target}): export the tuning again with --target {label}"
     )
 
 
@@ -447,7 +446,6 @@ class Picamera2Camera:
 
     def __init__(self, camera_num: int = 0, *, tuning: dict[str, Any] | None = None) -> None:
         module = _import_picamera2()
-        target = picamera2_target(module)
         if tuning is None:
             cameras = list_cameras()
             if not cameras:
@@ -458,7 +456,7 @@ class Picamera2Camera:
                 raise CameraError(f"no camera {camera_num}: {len(cameras)} found (numbered from 0)")
             model = cameras[camera_num].get("Model", "unknown")
             try:  # the file picamera2 finds (Picamera2.load_tuning_file), read by libcamera's rules
-                tuning = neutral_tuning(load_tuning(stock_tuning_path(model, target)))
+                tuning = neutral_tuning(load_tuning(stock_tuning_path(model, picamera2_target(module))))
             except TuningError as exc:
                 raise CameraError(f"no stock libcamera tuning file for the {model} ({exc})") from exc
             self._tuning_description = "stock with static unity rpi.alsc (n_iter 0)"
