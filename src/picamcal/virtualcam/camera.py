@@ -29,6 +29,7 @@ import os
 import threading
 import time
 import weakref
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -147,8 +148,10 @@ class CameraData:
         self.state = "available"
         self.lock = threading.Condition()
         self.queue_: list[Request] = []
-        self.thread: threading.Thread | None = None
-        self.current: Request | None = None
+        self.threads: list[threading.Thread] = []
+        #: Requests the sensor has taken, oldest first, and the frames handed to the ISP stage (same order).
+        self.in_flight: list[Request] = []
+        self.developing: list[_Frame] = []
         self.stopping = False
         self.active_streams: list[Stream] = []
         self.configured: CameraConfiguration | None = None
@@ -405,8 +408,13 @@ class CameraData:
             self.queue_ = []
             self.stopping = False
             self.state = "running"
-            self.thread = threading.Thread(target=self._run, name=f"virtual camera {self.spec.name}", daemon=True)
-            self.thread.start()
+            name = f"virtual camera {self.spec.name}"
+            self.threads = [
+                threading.Thread(target=self._run, name=name, daemon=True),
+                threading.Thread(target=self._run_isp, name=f"{name} ISP", daemon=True),
+            ]
+            for thread in self.threads:
+                thread.start()
 
     def queue(self, request: Request) -> None:
         with self.lock:
@@ -428,16 +436,14 @@ class CameraData:
             self.lock.notify_all()
 
     def stop(self) -> None:
-        """Stop at once: the queued requests, and the one whose frame is being made, complete as cancelled now (the
-        frame under way is dropped when it is done)."""
+        """Stop at once: the queued requests, and those whose frames are being made, complete as cancelled now (the
+        frames under way are dropped when they are done)."""
         with self.lock:
             if self.state != "running":
                 return
             self.stopping = True
-            pending, self.queue_ = self.queue_, []
-            if self.current is not None:
-                pending.insert(0, self.current)
-                self.current = None
+            pending = [*self.in_flight, *self.queue_]
+            self.queue_, self.in_flight, self.developing = [], [], []
             self.state = "configured"
             self.lock.notify_all()
         manager = self.manager_ref()
@@ -449,15 +455,19 @@ class CameraData:
                 manager._complete(request)
 
     def join(self) -> None:
-        """Wait for the frame thread of an earlier start to end (before the camera changes under it)."""
-        thread = self.thread
-        if thread is not None and thread is not threading.current_thread():
-            thread.join()
-        self.thread = None
+        """Wait for the frame threads of an earlier start to end (before the camera changes under them)."""
+        for thread in self.threads:
+            if thread is not threading.current_thread():
+                thread.join()
+        self.threads = []
 
     # -- frames ---------------------------------------------------------------------------------------------------
+    # Two stages, as on a Pi: the sensor's (the receiver writes the raw frame into the oldest queued request at the
+    # frame clock, and the IPA sees its statistics) and the ISP's (processed outputs, then completion, in order). A
+    # frame is processed while the next is read out, so a frame that takes a little longer to process does not cost
+    # the next one; requests bound how far the ISP may fall behind.
     def _run(self) -> None:
-        """The sensor's frame clock: each frame completes the oldest queued request, or is dropped."""
+        """The sensor's frame clock: each frame goes to the oldest queued request, or is dropped."""
         next_frame = time.monotonic_ns()
         while True:
             settings = self.ipa.settings_for(self.sequence)
@@ -472,13 +482,13 @@ class CameraData:
                 if self.stopping:
                     return
                 request = self.queue_.pop(0) if self.queue_ else None
-                self.current = request
+                if request is not None:
+                    self.in_flight.append(request)
             if request is not None:
                 try:
-                    self._process(request, settings, next_frame)
+                    self._receive(request, settings, next_frame)
                 except Exception as exc:  # a bug here must not leave picamera2 waiting for ever
-                    log("ERROR", "RPI", "virtualcam", f"frame {self.sequence} failed: {exc!r}")
-                    self._fail_request(request)
+                    self._fail_request(request, self.sequence, exc)
             self.sequence += 1
             late = time.monotonic_ns() - next_frame - int(frame_us * 1000)
             if late > 0:  # the frames the sensor delivered meanwhile went by without a request
@@ -488,21 +498,38 @@ class CameraData:
                 for seq in range(self.sequence - int(missed), self.sequence):
                     self.ipa.settings_for(seq)
 
-    def _fail_request(self, request: Request) -> None:
+    def _run_isp(self) -> None:
+        """The ISP: the frames the sensor stage hands over, processed and completed in order."""
+        while True:
+            with self.lock:
+                while not self.stopping and not self.developing:
+                    self.lock.wait()
+                if self.stopping:
+                    return
+                frame = self.developing.pop(0)
+            try:
+                self._develop(frame)
+            except Exception as exc:  # as in _run
+                self._fail_request(frame.request, frame.sequence, exc)
+
+    def _fail_request(self, request: Request, sequence: int, exc: Exception) -> None:
         """Complete a request whose frame could not be made, as a frame in error."""
+        log("ERROR", "RPI", "virtualcam", f"frame {sequence} failed: {exc!r}")
         with self.lock:
-            if request is not self.current:
+            if request not in self.in_flight:
                 return
-            self.current = None
+            self.in_flight.remove(request)
+            self.developing = [f for f in self.developing if f.request is not request]
         for buffer in request._buffers.values():
-            buffer.metadata._set(FrameMetadataStatus.Error, self.sequence, 0, [])
+            buffer.metadata._set(FrameMetadataStatus.Error, sequence, 0, [])
         request._status, request._pending = RequestStatus.Complete, 0
         manager = self.manager_ref()
         if manager is not None:
             manager._complete(request)
 
-    def _process(self, request: Request, settings: Any, timestamp: int) -> None:
-        """Fill one request's buffers and metadata from frame ``self.sequence`` and complete it."""
+    def _receive(self, request: Request, settings: Any, timestamp: int) -> None:
+        """The sensor's stage of frame ``self.sequence``: the request's controls applied, the raw frame read out
+        (into the raw stream's buffer), the IPA run on its statistics; the rest handed to the ISP stage."""
         isp = self.isp
         mode = self.configured.sensor_mode if self.configured else None
         assert isp is not None and mode is not None
@@ -512,23 +539,15 @@ class CameraData:
         exposure_us, gain, _ = self.ipa.exposure_of(settings)
         hflip, vflip = self.sensor_flips
         frame = self.sensor.capture(mode, exposure_us, gain, self.sequence, hflip, vflip)
-        planes = isp.linear_planes(frame, self.ipa.ct)
-        means = isp.means(planes)
-        gains = self.ipa.colour_gains()
-        ccm = self.ipa.ccm()
-        for stream, buffer in request._buffers.items():
-            memory = buffer.mapping()
-            config = stream._configuration
+        ct = self.ipa.ct
+        means = isp.statistics(frame, ct)
+        raw = self.streams[0]
+        if raw in request._buffers:
+            config = raw._configuration
             assert config is not None
-            dest = np.frombuffer(memory, dtype=np.uint8, count=config.frame_size, offset=buffer._planes[0].offset)
-            if stream is self.streams[0]:
-                layout = Layout(str(config.pixel_format), config.size.width, config.size.height, config.stride,
-                                config.frame_size)  # fmt: skip
-                encode_raw(frame, layout, mode.bit_depth, dest.reshape(config.size.height, config.stride))
-            else:
-                plan = next(p for s, p in self.plans if s is stream)
-                isp.render(planes, plan, gains, settings.digital_gain, ccm, dest)
-            del dest
+            layout = Layout(str(config.pixel_format), config.size.width, config.size.height, config.stride,
+                            config.frame_size)  # fmt: skip
+            encode_raw(frame, layout, mode.bit_depth, self._buffer_bytes(request, raw).reshape(layout.height, -1))
         metadata = self.ipa.metadata(settings, means)
         metadata["SensorTimestamp"] = int(timestamp)
         metadata["FrameWallClock"] = time.time_ns() - (time.monotonic_ns() - int(timestamp))
@@ -537,25 +556,74 @@ class CameraData:
             metadata["ScalerCrop"] = native[0]
             if len(native) > 1 and self.platform == "pisp":
                 metadata["ScalerCrops"] = tuple(native)
+        developed = _Frame(
+            request, self.sequence, int(timestamp), frame, ct, self.plans, self.ipa.colour_gains(),
+            settings.digital_gain, self.ipa.ccm(), metadata, self._status(),
+        )  # fmt: skip
         self.ipa.process(self.sequence, settings, means)
+        with self.lock:
+            if request in self.in_flight:  # not cancelled by stop() meanwhile
+                self.developing.append(developed)
+                self.lock.notify_all()
+
+    def _status(self) -> FrameMetadataStatus:
+        """The next frame's status: the IPA's invalid frames, then its start-up frames, then success."""
         if self.invalid:
-            status, self.invalid = FrameMetadataStatus.Error, self.invalid - 1
-        elif self.startup:
-            status, self.startup = FrameMetadataStatus.Startup_, self.startup - 1
-        else:
-            status = FrameMetadataStatus.Success
+            self.invalid -= 1
+            return FrameMetadataStatus.Error
+        if self.startup:
+            self.startup -= 1
+            return FrameMetadataStatus.Startup_
+        return FrameMetadataStatus.Success
+
+    @staticmethod
+    def _buffer_bytes(request: Request, stream: Stream) -> np.ndarray:
+        """The bytes of a request's buffer for ``stream`` (uint8, the stream's frame size)."""
+        buffer = request._buffers[stream]
+        config = stream._configuration
+        assert config is not None
+        return np.frombuffer(buffer.mapping(), np.uint8, count=config.frame_size, offset=buffer._planes[0].offset)
+
+    def _develop(self, frame: _Frame) -> None:
+        """The ISP's stage of one frame: its processed outputs, then its request completed."""
+        isp = self.isp
+        assert isp is not None
+        request = frame.request
+        planes = isp.linear_planes(frame.raw, frame.ct)
+        for stream, plan in frame.plans:
+            if stream in request._buffers:
+                dest = self._buffer_bytes(request, stream)
+                isp.render(planes, plan, frame.gains, frame.digital_gain, frame.ccm, dest)
+                del dest  # the mapping's export, before the next
         for stream, buffer in request._buffers.items():
             assert stream._configuration is not None
-            buffer.metadata._set(status, self.sequence, int(timestamp), [stream._configuration.frame_size])
+            buffer.metadata._set(frame.status, frame.sequence, frame.timestamp, [stream._configuration.frame_size])
         with self.lock:
-            if request is not self.current:  # cancelled by stop() meanwhile
+            if request not in self.in_flight:  # cancelled by stop() meanwhile
                 return
-            self.current = None
-            request._metadata = {k: stored(CONTROLS[k], v) for k, v in metadata.items() if k in CONTROLS}
+            self.in_flight.remove(request)
+            request._metadata = {k: stored(CONTROLS[k], v) for k, v in frame.metadata.items() if k in CONTROLS}
             request._status, request._pending = RequestStatus.Complete, 0
         manager = self.manager_ref()
         if manager is not None:
             manager._complete(request)
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """A frame between the sensor's stage and the ISP's: the raw frame and what the IPA had in force for it."""
+
+    request: Request
+    sequence: int
+    timestamp: int
+    raw: np.ndarray
+    ct: float
+    plans: list[tuple[Stream, OutputPlan]]
+    gains: tuple[float, float]
+    digital_gain: float
+    ccm: np.ndarray
+    metadata: dict[str, Any]
+    status: FrameMetadataStatus
 
 
 class CameraManager:

@@ -174,16 +174,17 @@ class Isp:
         self.white = float((1 << bits) - 1)
         self.gamma = gamma_table(gamma)
         self.channels = [int(c) for c in site_channels(order)]
-        self._lsc_ct: float | None = None
-        self._lsc: np.ndarray | None = None
+        self._lsc: tuple[float, np.ndarray] | None = None  # (colour temperature bucket, gains): one attribute, so
+        # that the sensor's and the ISP's stages, in threads of their own, never see one's bucket with the other's gains
         self._stack: np.ndarray | None = None
         self.has_alsc = any("rpi.alsc" in a for a in tuning.get("algorithms", []))
 
     def lens_shading(self, ct: float) -> np.ndarray:
         """Per-site gains at the quads (4, height / 2, width / 2), recomputed when the colour temperature moves."""
         bucket = round(ct / 50.0) * 50.0
-        if self._lsc is not None and self._lsc_ct == bucket:
-            return self._lsc
+        cached = self._lsc
+        if cached is not None and cached[0] == bucket:
+            return cached[1]
         mode = self.mode
         qh, qw = mode.height // 2, mode.width // 2
         gains = np.ones((4, qh, qw), dtype=np.float32)
@@ -194,13 +195,13 @@ class Isp:
             for site, channel in enumerate(self.channels):
                 sy, sx = divmod(site, 2)
                 gains[site] = (py[sy::2][:qh] @ tables[channel] @ px[sx::2][:qw].T).astype(np.float32)
-        self._lsc, self._lsc_ct = gains, bucket
+        self._lsc = (bucket, gains)
         return gains
 
     def linear_planes(self, frame: np.ndarray, ct: float) -> list[np.ndarray]:
         """The four Bayer sites of a raw frame, black subtracted, lens shading applied, on 0..1 (quad size).
 
-        With numba the planes are views of one buffer the next call overwrites (the frame thread's use).
+        With numba the planes are views of one buffer the next call overwrites (the ISP stage's use).
         """
         gains = self.lens_shading(ct)
         scale = np.float32(1.0 / (self.white - self.black))
@@ -222,13 +223,26 @@ class Isp:
             planes.append(plane)
         return planes
 
-    def means(self, planes: list[np.ndarray]) -> tuple[float, float, float]:
-        """The frame's mean red, green and blue (the statistics the AGC and AWB see), from a coarse grid."""
-        step = max(1, min(planes[0].shape) // 64)
+    def statistics(self, frame: np.ndarray, ct: float) -> tuple[float, float, float]:
+        """The frame's mean red, green and blue (the statistics the AGC and AWB see), from a coarse grid of the raw
+        frame: the values :meth:`linear_planes` gives there, clipped to 0..1 (the same float32 arithmetic).
+
+        They are taken from the raw frame, as the Pi 5's front end does, so that the IPA can run on a frame before
+        the ISP has processed it.
+        """
+        gains = self.lens_shading(ct)
+        quads_h, quads_w = gains.shape[1:]
+        step = max(1, min(quads_h, quads_w) // 64)
+        scale, black = np.float32(1.0 / (self.white - self.black)), np.float32(self.black)
         sums = [0.0, 0.0, 0.0]
         counts = [0, 0, 0]
         for site, channel in enumerate(self.channels):
-            sums[channel] += float(np.clip(planes[site][::step, ::step], 0, 1).mean())
+            sy, sx = divmod(site, 2)
+            samples = frame[sy : 2 * quads_h : 2 * step, sx : 2 * quads_w : 2 * step].astype(np.float32)
+            samples -= black
+            samples *= gains[site, ::step, ::step]
+            samples *= scale
+            sums[channel] += float(np.clip(samples, 0, 1).mean())
             counts[channel] += 1
         return (sums[0] / counts[0], sums[1] / counts[1], sums[2] / counts[2])
 
