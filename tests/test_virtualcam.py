@@ -175,6 +175,26 @@ def test_the_compiled_kernels_write_the_numpy_paths_bytes(monkeypatch):
         np.testing.assert_array_equal(fast, slow)
 
 
+def test_the_statistics_from_the_raw_frame_are_those_of_the_isps_planes():
+    # The IPA's statistics come from the raw frame (the sensor's stage), so that the ISP can process a frame while
+    # the next is read out: they are the clipped means of the linear planes on the same coarse grid, to the bit.
+    from picamcal.export.isp import SensorMode
+    from picamcal.export.tuning import load_tuning, stock_tuning_path
+    from picamcal.virtualcam import isp
+
+    frame = np.random.default_rng(8).integers(0, 4096, (300, 410)).astype(np.uint16)
+    frame[:40] = 4095  # saturated rows, for the clipping
+    tuning = load_tuning(stock_tuning_path("imx477", "pisp"))  # its lens shading: gains up to 1.58
+    for order in ("GRBG", "BGGR"):
+        stage = isp.Isp(tuning, SensorMode.full(410, 300), order, 12, 4096, None)
+        planes = stage.linear_planes(frame, 4000.0)
+        step = max(1, min(planes[0].shape) // 64)
+        means = [[], [], []]
+        for site, channel in enumerate(stage.channels):
+            means[channel].append(float(np.clip(planes[site][::step, ::step], 0, 1).mean()))
+        assert stage.statistics(frame, 4000.0) == tuple(sum(m) / len(m) for m in means)
+
+
 # -- the kernel's part ---------------------------------------------------------------------------------------------
 
 

