@@ -138,6 +138,25 @@ def test_pisp_compression_decodes_with_both_decoders_within_its_quantisation():
         assert np.abs(decoded - mosaic.astype(int)).max() <= step
 
 
+def test_the_compiled_pisp_compressor_writes_the_numpy_paths_words(monkeypatch):
+    # The compiled compressor makes every word in all three modes without branches; the numpy path is the reference.
+    # Random samples over the whole range reach mode 2 and each of its clamps; a smooth ramp with noise, the modes'
+    # edges; rows of a width that is no multiple of 8, the padding.
+    pytest.importorskip("numba")
+    from picamcal.raw.picamera2 import pisp
+
+    rng = np.random.default_rng(9)
+    mosaics = []
+    for shift, top in ((0, 65536), (4, 4096), (6, 1024)):
+        ramp = np.linspace(0, top - 1, 70)[None, :] + rng.normal(0, top / 400, (200, 70))
+        mosaics.append((shift, rng.integers(0, top, (200, 70)).astype(np.uint16)))
+        mosaics.append((shift, ramp.clip(0, top - 1).astype(np.uint16)))
+    compiled = [pisp_compress(mosaic, 80, shift=shift) for shift, mosaic in mosaics]
+    monkeypatch.setattr(pisp, "_compiled_words", lambda: None)
+    for (shift, mosaic), words in zip(mosaics, compiled, strict=True):
+        np.testing.assert_array_equal(words, pisp_compress(mosaic, 80, shift=shift))
+
+
 def test_the_compiled_kernels_write_the_numpy_paths_bytes(monkeypatch):
     pytest.importorskip("numba")
     from picamcal.export.isp import SensorMode
