@@ -114,7 +114,7 @@ def test_live_codes_equal_correct_processed_on_the_same_frame(setup, prepared, e
 @pytest.mark.skipif(not numba_available(), reason="numba is not installed")
 def test_numba_and_numpy_give_the_same_codes_on_padded_rows(setup, prepared):
     # picamera2's rows are padded to the stride: the frame is a view with a row step above width * 3.
-    # The numba kernel takes rows in blocks of 16 (120 rows: a last block of 8), in numba's threads with parallel.
+    # And with parallel=True, numba's threads share the rows.
     width, height = STREAM
     numba = prepared["numba"]
     threaded = LiveUnmixer(numba.size, numba.format, numba.field, numba.curve, "numba", parallel=True)

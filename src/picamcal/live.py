@@ -67,8 +67,6 @@ ENCODE_TABLE_SIZE = 1 << 14
 ENGINES = ("auto", "numba", "numpy")
 #: Rows per block of the numpy path (bounds its float32 temporaries to a few MB at 1920 pixels wide).
 _NUMPY_ROWS = 64
-#: Rows per block of the numba kernel (a block of rows has its scratch rows; the blocks are shared among threads).
-_KERNEL_ROWS = 16
 
 
 class LiveStreamError(PicamcalError):
@@ -320,13 +318,7 @@ def tone_curve_tables(encoding: str | None = None, tuning: Mapping[str, Any] | N
 
 @functools.lru_cache(maxsize=2)
 def _numba_unmix(parallel: bool) -> Callable[..., None]:
-    """The numba kernel, compiled (or loaded from numba's cache) on first use: numba is imported only here.
-
-    Row by row, each step in a loop of its own over the row (the pixels' linear values, then per channel its mix
-    and the first guess of its code, then the code's check against the curve's edges), so that the compiler
-    vectorises the arithmetic; the field's planes are read in order. Rows are taken in blocks, each block with its
-    own rows of scratch (shared among numba's threads with ``parallel``).
-    """
+    """The numba kernel, compiled (or loaded from numba's cache) on first use: numba is imported only here."""
     import numba
 
     signature = (
@@ -334,36 +326,29 @@ def _numba_unmix(parallel: bool) -> Callable[..., None]:
         "float32[::1])"
     )
 
-    @numba.njit(signature, parallel=parallel, cache=True, nogil=True, error_model="numpy")
-    def unmix(rows, width, step, red, green, blue, planes, decode, encode, edges):
-        top = np.float32(encode.shape[0] - 1)
-        zero = np.float32(0.0)
-        offsets = (red, green, blue)
-        height = rows.shape[0]
-        blocks = (height + _KERNEL_ROWS - 1) // _KERNEL_ROWS
-        for block in numba.prange(blocks):
-            linear = np.empty((3, width), np.float32)
-            mixed = np.empty(width, np.float32)
-            guess = np.empty(width, np.int32)
-            for y in range(block * _KERNEL_ROWS, min(height, (block + 1) * _KERNEL_ROWS)):
-                row = rows[y]
-                for c in range(3):
-                    values, offset = linear[c], offsets[c]
-                    for x in range(width):
-                        values[x] = decode[row[x * step + offset]]
-                r, g, b = linear[0], linear[1], linear[2]
-                for c in range(3):
-                    m0, m1, m2 = planes[3 * c, y], planes[3 * c + 1, y], planes[3 * c + 2, y]
-                    for x in range(width):
-                        value = m0[x] * r[x] + m1[x] * g[x] + m2[x] * b[x]
-                        mixed[x] = value
-                        guess[x] = np.int32(min(max(value * top, zero), top))
-                    offset = offsets[c]
-                    for x in range(width):
-                        value, code = mixed[x], np.intp(encode[guess[x]])
-                        while value >= edges[code + 1]:
-                            code += 1
-                        row[x * step + offset] = np.uint8(code)
+    @numba.njit(nogil=True, cache=True)
+    def encoded(value, encode, edges):
+        top = encode.shape[0] - 1
+        code = np.intp(encode[min(max(int(value * np.float32(top)), 0), top)])
+        while value >= edges[code + 1]:
+            code += 1
+        return np.uint8(code)
+
+    @numba.njit(signature, parallel=parallel, cache=True, nogil=True)
+    def unmix(rows, width, step, red, green, blue, field, decode, encode, edges):
+        for y in numba.prange(rows.shape[0]):
+            for x in range(width):
+                at = x * step
+                r = decode[rows[y, at + red]]
+                g = decode[rows[y, at + green]]
+                b = decode[rows[y, at + blue]]
+                m = field[y, x]
+                out_r = m[0] * r + m[1] * g + m[2] * b
+                out_g = m[3] * r + m[4] * g + m[5] * b
+                out_b = m[6] * r + m[7] * g + m[8] * b
+                rows[y, at + red] = encoded(out_r, encode, edges)
+                rows[y, at + green] = encoded(out_g, encode, edges)
+                rows[y, at + blue] = encoded(out_b, encode, edges)
 
     return unmix
 
@@ -400,8 +385,7 @@ class LiveUnmixer:
     size : (width, height)
     format : StreamFormat
     field : ndarray of float32, shape (height, width, 9)
-        The per-pixel matrices (:func:`unmixing_field`, row-major), 36 bytes a pixel: a view of the nine planes
-        (9, height, width) they are kept in, which the kernel reads in order.
+        The per-pixel matrices (:func:`unmixing_field`, row-major), 36 bytes a pixel.
     curve : ToneCurve
         The tone curve's tables (:func:`tone_curve_tables`).
     engine : {"numba", "numpy"}
@@ -425,9 +409,7 @@ class LiveUnmixer:
     ) -> None:
         self.size = size
         self.format = format
-        width, height = size
-        self._planes = np.ascontiguousarray(np.asarray(field, np.float32).reshape(height, width, 9).transpose(2, 0, 1))
-        self.field = self._planes.transpose(1, 2, 0)
+        self.field = field
         self.curve = curve
         self.engine = engine
         self.parallel = parallel
@@ -636,7 +618,7 @@ class LiveUnmixer:
                 fmt.red,
                 fmt.green,
                 fmt.blue,
-                self._planes,
+                self.field,
                 *self.curve,
             )
         else:
