@@ -174,8 +174,9 @@ class Isp:
         self.white = float((1 << bits) - 1)
         self.gamma = gamma_table(gamma)
         self.channels = [int(c) for c in site_channels(order)]
-        self._lsc: tuple[float, np.ndarray] | None = None  # (colour temperature bucket, gains): one attribute, so
-        # that the sensor's and the ISP's stages, in threads of their own, never see one's bucket with the other's gains
+        # (colour temperature bucket, gains) in one attribute: the sensor's and the ISP's stages, in threads of their
+        # own, never see one's bucket with the other's gains.
+        self._lsc: tuple[float, np.ndarray] | None = None
         self._stack: np.ndarray | None = None
         self.has_alsc = any("rpi.alsc" in a for a in tuning.get("algorithms", []))
 
