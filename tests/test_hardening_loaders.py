@@ -338,6 +338,17 @@ def test_load_calibration_raises_only_picamcal_errors_and_what_loads_is_usable(s
     assert np.all(np.isfinite(cal.noise_penalty("flat")))
 
 
+def test_a_white_near_the_float32_limit_gives_a_finite_noise_penalty(sim_run, tmp_path):
+    # Found by the fuzz test above: a white of 1e38 everywhere loads (finite, positive), and the centre's float32
+    # mean overflowed to inf, which made every noise penalty inf.
+    members = _members(sim_run["cal"])
+    members["white.npy"] = _npy(np.full(np.load(io.BytesIO(members["white.npy"])).shape, 1e38, "<f4"))
+    cal = load_calibration(_write_npz(tmp_path / "bright.npz", members, False))
+    for mode in ("flat", "centre"):
+        assert np.all(np.isfinite(cal.noise_penalty(mode))), mode
+    np.testing.assert_allclose(cal.noise_penalty("flat"), 1.0, rtol=1e-6)
+
+
 # --- tuning files ---------------------------------------------------------------------------------------------
 
 

@@ -500,7 +500,7 @@ picamcal calibrate --white WHITE --unmixing-from JIG.npz
         if parsed is Mode.UNCORRECTED:
             return np.ones(self.white.shape, dtype=np.float32)
         ys, xs = self.centre_slices
-        w_centre = self.white[ys, xs].reshape(-1, 3).mean(axis=0)
+        w_centre = self.white[ys, xs].reshape(-1, 3).mean(axis=0, dtype=np.float64)  # float32 sums overflow
         matrices = self.matrices(parsed)
         if matrices is None:
             matrices = np.broadcast_to(np.eye(3), (*self.white.shape[:2], 3, 3))
