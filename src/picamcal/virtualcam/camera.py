@@ -519,7 +519,6 @@ class CameraData:
             if request not in self.in_flight:
                 return
             self.in_flight.remove(request)
-            self.developing = [f for f in self.developing if f.request is not request]
         for buffer in request._buffers.values():
             buffer.metadata._set(FrameMetadataStatus.Error, sequence, 0, [])
         request._status, request._pending = RequestStatus.Complete, 0

@@ -214,15 +214,18 @@ class Isp:
             quads = gains.shape[1]  # rows of quads: two rows of the frame each
             in_row_blocks(lambda a, b: kernel(frame[2 * a : 2 * b], black, gains[:, a:b], scale, stack[:, a:b]), quads)
             return list(stack)
-        planes = []
-        for site in range(4):
-            sy, sx = divmod(site, 2)
-            plane = frame[sy::2, sx::2].astype(np.float32)
-            plane -= np.float32(self.black)
-            plane *= gains[site]
-            plane *= scale
-            planes.append(plane)
-        return planes
+        return [self._site_values(frame, site, gains) for site in range(4)]
+
+    def _site_values(self, frame: np.ndarray, site: int, gains: np.ndarray, step: int = 1) -> np.ndarray:
+        """One Bayer site's values at every ``step``-th quad, black subtracted, lens shading applied, on 0..1 (numpy;
+        the compiled planes kernel does the same float32 operations in the same order)."""
+        sy, sx = divmod(site, 2)
+        quads_h, quads_w = gains.shape[1:]
+        values = frame[sy : 2 * quads_h : 2 * step, sx : 2 * quads_w : 2 * step].astype(np.float32)
+        values -= np.float32(self.black)
+        values *= gains[site, ::step, ::step]
+        values *= np.float32(1.0 / (self.white - self.black))
+        return values
 
     def statistics(self, frame: np.ndarray, ct: float) -> tuple[float, float, float]:
         """The frame's mean red, green and blue (the statistics the AGC and AWB see), from a coarse grid of the raw
@@ -232,18 +235,11 @@ class Isp:
         the ISP has processed it.
         """
         gains = self.lens_shading(ct)
-        quads_h, quads_w = gains.shape[1:]
-        step = max(1, min(quads_h, quads_w) // 64)
-        scale, black = np.float32(1.0 / (self.white - self.black)), np.float32(self.black)
+        step = max(1, min(gains.shape[1:]) // 64)
         sums = [0.0, 0.0, 0.0]
         counts = [0, 0, 0]
         for site, channel in enumerate(self.channels):
-            sy, sx = divmod(site, 2)
-            samples = frame[sy : 2 * quads_h : 2 * step, sx : 2 * quads_w : 2 * step].astype(np.float32)
-            samples -= black
-            samples *= gains[site, ::step, ::step]
-            samples *= scale
-            sums[channel] += float(np.clip(samples, 0, 1).mean())
+            sums[channel] += float(np.clip(self._site_values(frame, site, gains, step), 0, 1).mean())
             counts[channel] += 1
         return (sums[0] / counts[0], sums[1] / counts[1], sums[2] / counts[2])
 
