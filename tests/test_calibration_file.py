@@ -75,7 +75,7 @@ def test_round_trip_keeps_every_field_and_the_kind(tmp_path, linear_refs, kind):
     assert back.provenance["software_version"] and back.provenance["created"]
     with np.load(path, allow_pickle=False) as data:  # plain arrays and JSON: no pickles anywhere
         record = json.loads(str(data["metadata"]))
-    assert record["schema"] == "picamcal-calibration" and record["schema_version"] == 1 and record["kind"] == kind
+    assert record["schema"] == "picamcal-calibration" and record["schema_version"] == 2 and record["kind"] == kind
     # The record on disk keeps the keys files have always had, the derived count included.
     assert {*RECORD_FIELDS, "inputs", "created", "software_version", "black_frame"} <= set(record)
     assert ("ill_conditioned_bins" in record) == (kind == "full")

@@ -225,7 +225,14 @@ def test_record_types_and_agreement_with_the_fields_are_checked(sim_run, tmp_pat
     record = _record(members)
     for change, message in (
         ({"width": "320"}, "record 'width' must be a positive whole number, not the string '320'"),
-        ({"width": 336}, "'site_responses' has shape (4, 15, 20, 4), expected (4, 15, 21, 4)"),
+        ({"width": 336}, "a 320x240 crop binned 1x1 is not the calibration's 336x240"),
+        (
+            {"width": 336, "geometry": {**record["geometry"], "crop": [0, 0, 336, 240], "sensor_size": [336, 240]}},
+            "'site_responses' has shape (4, 15, 20, 4), expected (4, 15, 21, 4)",
+        ),
+        ({"geometry": {**record["geometry"], "crop": [0, 0, 640, 240]}}, "is not an area of the 320x240 sensor"),
+        ({"geometry": {**record["geometry"], "hflip": 1}}, "record 'geometry'.hflip must be true or false"),
+        ({"geometry": {**record["geometry"], "source": "guess"}}, "record 'geometry'.source must be one of camera"),
         ({"bin_size": 15}, "record 'bin_size' must be even"),
         ({"pattern": "XGGB"}, "record 'pattern' must be one of RGGB, GBRG, BGGR, GRBG"),
         ({"centre_region": [5, 99, 6, 13]}, "is not a region of the 15 x 20 bins"),

@@ -38,6 +38,26 @@ class LegacyMode:
 
 
 @dataclass(frozen=True)
+class DriverMode:
+    """A sensor mode of the Linux driver (``drivers/media/i2c/<sensor>.c``: ``supported_modes``).
+
+    Attributes
+    ----------
+    width, height : int
+        Output size in pixels.
+    bit_depth : int
+        Bits per pixel of the mode's media bus code.
+    crop : (x, y, width, height)
+        The area of the active pixel array the mode reads (libcamera's ``analogCrop``, picamera2's ``crop_limits``).
+    """
+
+    width: int
+    height: int
+    bit_depth: int
+    crop: tuple[int, int, int, int]
+
+
+@dataclass(frozen=True)
 class Sensor:
     """Constants of one image sensor.
 
@@ -87,6 +107,11 @@ class Sensor:
     legacy_ident: str = "BRCM"
     legacy_aliases: tuple[str, ...] = ()
     binned_modes: tuple[tuple[int, int], ...] = ()
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the full pixel array."""
+        return self.width, self.height
 
     @property
     def white_level(self) -> int:
@@ -415,3 +440,60 @@ def _other_digit(typed: str, name: str) -> bool:
         return False
     diff = [(a, b) for a, b in zip(typed, name, strict=True) if a != b]
     return len(diff) == 1 and diff[0][0].isdigit() and diff[0][1].isdigit()
+
+
+def _imx219_modes() -> tuple[DriverMode, ...]:
+    # imx219.c supported_modes (crop relative to the active array), in 8 and 10 bits (imx219_mbus_formats).
+    sizes = (
+        (640, 480, (1000, 752, 1280, 960)),
+        (1640, 1232, (0, 0, 3280, 2464)),
+        (1920, 1080, (680, 692, 1920, 1080)),
+        (3280, 2464, (0, 0, 3280, 2464)),
+    )
+    return tuple(DriverMode(w, h, bits, crop) for bits in (8, 10) for w, h, crop in sizes)
+
+
+#: The driver's modes of the sensors whose driver tables picamcal holds, as libcamera lists them (by bit depth, then
+#: size); other sensors have nominal modes (:func:`sensor_modes`). Sources: the Raspberry Pi kernel's drivers
+#: (``drivers/media/i2c/<sensor>.c``), crops relative to the active array (without the PIXEL_ARRAY_LEFT/TOP offsets).
+DRIVER_MODES: dict[str, tuple[DriverMode, ...]] = {
+    # imx477.c supported_modes_12bit and _10bit.
+    "imx477": (
+        DriverMode(1332, 990, 10, (696, 528, 2664, 1980)),
+        DriverMode(2028, 1080, 12, (0, 440, 4056, 2160)),
+        DriverMode(2028, 1520, 12, (0, 0, 4056, 3040)),
+        DriverMode(4056, 3040, 12, (0, 0, 4056, 3040)),
+    ),
+    "imx219": _imx219_modes(),
+    # imx708.c supported_modes_10bit_no_hdr.
+    "imx708": (
+        DriverMode(1536, 864, 10, (768, 432, 3072, 1728)),
+        DriverMode(2304, 1296, 10, (0, 0, 4608, 2592)),
+        DriverMode(4608, 2592, 10, (0, 0, 4608, 2592)),
+    ),
+    # ov5647.c ov5647_modes.
+    "ov5647": (
+        DriverMode(640, 480, 10, (16, 0, 2560, 1920)),
+        DriverMode(1296, 972, 10, (0, 0, 2592, 1944)),
+        DriverMode(1920, 1080, 10, (348, 434, 1928, 1080)),
+        DriverMode(2592, 1944, 10, (0, 0, 2592, 1944)),
+    ),
+}
+
+
+def sensor_modes(name: str) -> tuple[DriverMode, ...]:
+    """The modes of a registry sensor: its driver's (:data:`DRIVER_MODES`), else nominal ones (its binned modes of
+    the whole array and the full array, at its native bit depth).
+
+    Examples
+    --------
+    >>> [(m.width, m.height, m.crop) for m in sensor_modes("imx477")][:2]
+    [(1332, 990, (696, 528, 2664, 1980)), (2028, 1080, (0, 440, 4056, 2160))]
+    >>> [(m.width, m.height) for m in sensor_modes("imx296")]
+    [(1456, 1088)]
+    """
+    sensor = get_sensor(name)
+    if sensor.name in DRIVER_MODES:
+        return DRIVER_MODES[sensor.name]
+    full = (0, 0, sensor.width, sensor.height)
+    return tuple(DriverMode(w, h, sensor.bit_depth, full) for w, h in (*sorted(sensor.binned_modes), sensor.size))

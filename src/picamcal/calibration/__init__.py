@@ -44,6 +44,7 @@ import numpy as np
 from .._atomic import atomic_path
 from ..bayer import bin_centres
 from ..errors import CalibrationFileError, CalibrationInputError
+from ..geometry import SensorMode, assumed_geometry
 from ..modes import Mode, parse_mode
 from ..raw.model import RawImage
 from .archive import read_archive
@@ -215,6 +216,7 @@ class Calibration:
     bit_depth: int | None = None
     smoothing: float = 0.0
     light: str | None = None
+    geometry: SensorMode | None = None
     provenance: Mapping[str, Any] = field(default_factory=lambda: {"inputs": []})
     # The flat field (both kinds).
     site_responses: np.ndarray
@@ -240,6 +242,8 @@ class Calibration:
         clash = sorted(set(self.provenance) & {*RECORD_FIELDS, *DERIVED_KEYS, "schema", "schema_version"})
         if clash:
             raise CalibrationInputError(f"provenance holds {', '.join(map(repr, clash))}, a field of the calibration")
+        if self.geometry is not None and not isinstance(self.geometry, SensorMode):
+            raise CalibrationInputError(f"geometry must be a SensorMode, not {type(self.geometry).__name__}")
         record = self.to_record()
         kind, nby, nbx = check_record(record, None, CalibrationInputError)
         validate_arrays(self.to_arrays(), kind, nby, nbx, None, CalibrationInputError)
@@ -255,6 +259,7 @@ class Calibration:
             "white_level": _plain_number(self.white_level),
             "bit_depth": None if self.bit_depth is None else int(self.bit_depth),
             "provenance": _freeze(self.provenance),
+            "geometry": self.geometry or assumed_geometry(self.sensor, self.width, self.height, self.bit_depth),
         }
         for name, value in typed.items():
             object.__setattr__(self, name, value)
@@ -311,6 +316,12 @@ class Calibration:
         for key in ("centre_region", "black_level"):
             if key in fields:
                 fields[key] = tuple(fields[key])
+        if "geometry" in fields:
+            fields["geometry"] = SensorMode.from_record(fields["geometry"])
+        else:  # a file from before the geometry was recorded
+            fields["geometry"] = assumed_geometry(
+                fields.get("sensor"), fields["width"], fields["height"], fields.get("bit_depth"), source="unknown"
+            )
         unknown = sorted(set(arrays) - {*ARRAYS, *GLOBAL_ARRAYS})
         if unknown:
             raise error(f"calibration holds an unknown array {unknown[0]!r}", path)
@@ -341,6 +352,8 @@ class Calibration:
         for key in ("white_level", "bit_depth"):
             if record[key] is None:
                 del record[key]
+        geometry = self.geometry or assumed_geometry(self.sensor, self.width, self.height, self.bit_depth)
+        record["geometry"] = geometry.to_record()
         record.update(_thaw(self.provenance))
         if self.ill_conditioned is not None:
             record["ill_conditioned_bins"] = int(np.count_nonzero(self.ill_conditioned))
@@ -554,7 +567,8 @@ picamcal calibrate --white WHITE --unmixing-from JIG.npz
         )
 
     def check_compatible(self, raw: RawImage) -> None:
-        """Raise CalibrationFileError if ``raw`` is not from the sensor, size and pattern this calibration is for."""
+        """Raise CalibrationFileError if ``raw`` is not from the sensor, size and pattern this calibration is for
+        (a frame of another sensor mode is first resampled: :func:`picamcal.correct.calibration_for_raw`)."""
         problems = []
         by_size = raw.metadata.get("sensor_source") == "size"  # taken from the frame's size: the calibration says
         if self.sensor and raw.sensor and raw.sensor != self.sensor and not by_size:

@@ -25,8 +25,8 @@ from .schema import (
     BOOL_ARRAYS,
     GLOBAL_ARRAYS,
     KIND_NAMES,
+    READABLE_VERSIONS,
     SCHEMA,
-    SCHEMA_VERSION,
     check_record,
     dtype_name,
     expected_shapes,
@@ -155,10 +155,11 @@ def _read_record(archive: zipfile.ZipFile, info: zipfile.ZipInfo, path: Path) ->
     if not isinstance(record, dict) or record.get("schema") != SCHEMA:
         raise CalibrationFileError("not a picamcal calibration file", path)
     version = record.get("schema_version")
-    if type(version) is not int or version != SCHEMA_VERSION:
+    if type(version) is not int or version not in READABLE_VERSIONS:
         shown = repr(version) if isinstance(version, (int, float, type(None))) else type(version).__name__
         raise CalibrationFileError(
-            f"calibration schema version {shown} is not supported (this picamcal reads version {SCHEMA_VERSION})",
+            f"calibration schema version {shown} is not supported (this picamcal reads versions "
+            f"{', '.join(map(str, READABLE_VERSIONS))}; a newer picamcal wrote it: update picamcal)",
             path,
         )
     del record["schema"], record["schema_version"]

@@ -14,11 +14,14 @@ import numpy as np
 
 from .._json import Fields
 from ..errors import PicamcalError, RawFormatError
+from ..geometry import GEOMETRY_SOURCES
 from ..limits import check_size
 from ..raw.model import PATTERNS
 
 SCHEMA = "picamcal-calibration"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: The versions this picamcal reads: version 1 has no ``geometry`` (it loads as the full sensor, source "unknown").
+READABLE_VERSIONS = (1, 2)
 #: The kinds of calibration: with colour unmixing, and a flat field from a white alone.
 Kind = Literal["full", "flat"]
 #: Values of the record's ``kind``.
@@ -61,6 +64,7 @@ RECORD_FIELDS = (
     "bit_depth",
     "smoothing",
     "light",
+    "geometry",
 )
 #: The lights a calibration's references can be taken under (:attr:`Calibration.light`), named as the workflows of
 #: docs/accuracy.md (``picamcal/data/accuracy.json``) name them, with what each is. None (or no key): not recorded.
@@ -130,11 +134,33 @@ def check_record(meta: Any, path: Path | None, error: type[PicamcalError]) -> tu
             fields.number(meta[key], f"record {key!r}", minimum=0)
     for i, entry in enumerate(fields.items(meta["inputs"], "record 'inputs'")):
         _check_input(fields, entry, f"record 'inputs'[{i}]")
+    if "geometry" in meta:
+        _check_geometry(fields, meta["geometry"], width, height)
     if "in_situ" in meta:
         fields.mapping(meta["in_situ"], "record 'in_situ'")
     if "noise_limit" in meta:
         _check_noise_limit(fields, meta["noise_limit"])
     return kind, nby, nbx
+
+
+def _check_geometry(fields: Fields, geometry: Any, width: int, height: int) -> None:
+    """The ``geometry`` record (:meth:`picamcal.geometry.SensorMode.to_record`): the sensor, the crop of the mode on
+    it and its binning, which must give the calibration's image size."""
+    what = "record 'geometry'"
+    fields.mapping(geometry, what, ("sensor_size", "crop", "binning", "source"))
+    sw, sh = fields.numbers(geometry["sensor_size"], f"{what}.sensor_size", 2, integer=True, positive=True)
+    x, y, cw, ch = fields.numbers(geometry["crop"], f"{what}.crop", 4, integer=True, minimum=0)
+    binning = fields.number(geometry["binning"], f"{what}.binning", integer=True, minimum=1, maximum=16)
+    fields.text(geometry["source"], f"{what}.source", tuple(GEOMETRY_SOURCES))
+    for key in ("hflip", "vflip"):
+        if type(geometry.get(key, False)) is not bool:
+            fields.fail(f"{what}.{key}", "must be true or false")
+    if geometry.get("bit_depth") is not None:
+        fields.number(geometry["bit_depth"], f"{what}.bit_depth", integer=True, minimum=1, maximum=32)
+    if min(cw, ch) < 1 or x + cw > sw or y + ch > sh:
+        fields.fail(f"{what}.crop", f"{[x, y, cw, ch]} is not an area of the {sw}x{sh} sensor")
+    if abs(cw / binning - width) > 1 or abs(ch / binning - height) > 1:
+        fields.fail(what, f"a {cw}x{ch} crop binned {binning}x{binning} is not the calibration's {width}x{height}")
 
 
 def _check_noise_limit(fields: Fields, limit: Any) -> None:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any, TypedDict
 
 import numpy as np
@@ -31,6 +30,7 @@ import numpy as np
 from ..bayer import central_half, sites_to_channels
 from ..calibration import Calibration
 from ..errors import PicamcalError
+from ..geometry import SensorMode, mode_for_image
 from ..raw.model import RawImage, site_channels
 from ..raw.processed import ProcessedImage
 from ..sensors import LSC_GRIDS, SENSORS
@@ -45,45 +45,6 @@ from .tuning_rules import (  # noqa: F401 - libcamera's rules, importable from h
 
 #: The colour temperature (kelvin) libcamera's ALSC starts from when ``rpi.alsc`` gives no ``default_ct``.
 DEFAULT_CT = 4500.0
-
-
-@dataclass(frozen=True)
-class SensorMode:
-    """Where a sensor mode's image lies on the full sensor (libcamera's ``CameraMode``).
-
-    Attributes
-    ----------
-    sensor_width, sensor_height : int
-        Full sensor size in pixels.
-    crop : (x, y, width, height)
-        The sensor area the mode reads, in full-sensor pixels.
-    binning : int
-        Binning or scaling factor from that area to the mode's image.
-    hflip, vflip : bool
-        Mirroring of the mode's image.
-    """
-
-    sensor_width: int
-    sensor_height: int
-    crop: tuple[int, int, int, int]
-    binning: int = 1
-    hflip: bool = False
-    vflip: bool = False
-
-    @classmethod
-    def full(cls, width: int, height: int) -> SensorMode:
-        """The full-resolution mode of a ``width`` x ``height`` sensor."""
-        return cls(width, height, (0, 0, width, height))
-
-    @property
-    def width(self) -> int:
-        """Image width of the mode."""
-        return self.crop[2] // self.binning
-
-    @property
-    def height(self) -> int:
-        """Image height of the mode."""
-        return self.crop[3] // self.binning
 
 
 def full_sensor_size(raw: RawImage) -> tuple[int, int]:
@@ -101,39 +62,6 @@ def full_sensor_size(raw: RawImage) -> tuple[int, int]:
         return int(width), int(height)
     sensor = SENSORS.get(raw.sensor or "")
     return (sensor.width, sensor.height) if sensor else (raw.width, raw.height)
-
-
-def mode_for_image(
-    sensor_size: tuple[int, int], image_size: tuple[int, int], crop: tuple[int, int, int, int] | None = None
-) -> SensorMode:
-    """The sensor mode an image of ``image_size`` comes from: full size, a binned full field, or an explicit crop.
-
-    Raises
-    ------
-    PicamcalError
-        The image is neither the full sensor nor an integer binning of it, and no crop is given.
-
-    Examples
-    --------
-    >>> mode_for_image((3280, 2464), (1640, 1232)).binning
-    2
-    """
-    (sw, sh), (w, h) = sensor_size, image_size
-    if crop is None:
-        for binning in (1, 2, 3, 4):
-            if (sw // binning, sh // binning) == (w, h) or (-(-sw // binning), -(-sh // binning)) == (w, h):
-                return SensorMode(sw, sh, (0, 0, sw, sh), binning)
-        raise PicamcalError(
-            f"a {w}x{h} image is not the full {sw}x{sh} sensor or a binned copy of it: give the sensor crop of its "
-            "mode (--sensor-crop X,Y,WIDTH,HEIGHT in full-sensor pixels)"
-        )
-    x, y, cw, ch = crop
-    if x < 0 or y < 0 or x + cw > sw or y + ch > sh:
-        raise PicamcalError(f"sensor crop {crop} lies outside the {sw}x{sh} sensor")
-    binning = round(cw / w)
-    if binning < 1 or abs(cw / binning - w) > 1 or abs(ch / binning - h) > 1:
-        raise PicamcalError(f"a {w}x{h} image cannot come from the {cw}x{ch} sensor crop {crop}")
-    return SensorMode(sw, sh, (x, y, cw, ch), binning)
 
 
 def _resample_matrix(n_out: int, n_in: int, start: float, step: float, flip: bool = False) -> np.ndarray:

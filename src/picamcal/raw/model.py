@@ -6,12 +6,21 @@ import math
 import numbers
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from ..errors import RawFormatError
+from ..errors import PicamcalError, RawFormatError
+from ..geometry import (
+    GEOMETRY_SOURCES,
+    SensorMode,
+    full_field_binning,
+    mode_from_crop,
+    mode_names,
+    named_mode,
+    registry_mode,
+)
 from ..sensors import SENSORS, black_level_at, get_sensor, or_list
 
 PATTERNS = ("RGGB", "GBRG", "BGGR", "GRBG")
@@ -54,6 +63,15 @@ METADATA_KINDS: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "colour_gains": ("2 positive numbers", _numbers_of(2, _positive)),
     "colour_correction_matrix": ("9 finite numbers", _numbers_of(9, _finite)),
     "sensor_size": ("2 positive whole numbers", _numbers_of(2, lambda v: _positive(v) and _whole_number(v))),
+    **{
+        key: ("4 whole numbers (x, y, width, height)", _numbers_of(4, lambda v: _whole_number(v) and v >= 0))
+        for key in ("sensor_crop", "scaler_crop")
+    },
+    "sensor_flips": (
+        "2 booleans (hflip, vflip)",
+        lambda v: isinstance(v, list) and len(v) == 2 and all(isinstance(b, bool) for b in v),
+    ),
+    "geometry_source": ("a geometry source", lambda v: v in GEOMETRY_SOURCES),
 }
 
 
@@ -281,3 +299,82 @@ def _text(value: Any) -> str:
     else:
         text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def raw_geometry(
+    raw: RawImage, *, sensor_crop: tuple[int, int, int, int] | None = None, sensor_mode: str | None = None
+) -> SensorMode:
+    """Where a raw frame lies on its sensor, from what says it, in this order:
+
+    1. ``sensor_crop`` (x, y, width, height in full-sensor pixels) or ``sensor_mode`` (``"WxH[:BITS]"``, a mode of
+       the registry's sensor), the user's word (``--sensor-crop``, ``--sensor-mode``);
+    2. the file or the camera (``metadata["sensor_crop"]``, ``["sensor_size"]``, ``["sensor_flips"]``: picamera2
+       captures and the DNGs picamcal writes of them, the simulator's frames);
+    3. the registry's mode of the sensor of this size (rpicam-still and picamera2 DNGs, headless dumps: they record
+       no crop), :func:`picamcal.geometry.registry_mode`;
+    4. the whole sensor, binned to the frame's size, or a sensor of the frame's size when it is not known
+       (``source`` ``"assumed"``).
+
+    Raises
+    ------
+    RawFormatError
+        A crop outside the sensor or that cannot give the frame's size, a mode the sensor does not have or of
+        another size than the frame, or a frame no mode of its known sensor gives (the message lists the modes and
+        names the option that fixes it).
+
+    Examples
+    --------
+    >>> raw = RawImage(np.zeros((1080, 1920), np.uint16), "BGGR", (64,) * 4, 1023, 10, "imx219")
+    >>> print(raw_geometry(raw).describe())
+    1920x1080 from the 1920x1080 crop at (680, 692) of the 3280x2464 sensor, 10 bits (registry)
+    >>> raw_geometry(raw, sensor_crop=(0, 0, 3840, 2160))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.RawFormatError: <array>: --sensor-crop 0,0,3840,2160 lies outside the 3280x2464 sensor
+    """
+    size = (raw.width, raw.height)
+    recorded = raw.metadata.get("sensor_size")
+    entry = SENSORS.get(raw.sensor or "")
+    sensor_size = (int(recorded[0]), int(recorded[1])) if recorded else (entry.size if entry else None)
+    try:
+        if sensor_crop is not None:
+            if sensor_size is None:
+                raise PicamcalError(
+                    "--sensor-crop needs the sensor's full size, which this frame's unknown sensor does not give: "
+                    "name it with --sensor"
+                )
+            return replace(mode_from_crop(sensor_size, size, sensor_crop), bit_depth=raw.bit_depth)
+        if sensor_mode is not None:
+            mode = named_mode(raw.sensor, sensor_mode)
+            if (mode.width, mode.height) != size:
+                raise PicamcalError(
+                    f"--sensor-mode {sensor_mode}: the frame is {size[0]}x{size[1]}, "
+                    f"the mode {mode.width}x{mode.height}"
+                )
+            return mode
+    except PicamcalError as exc:
+        raise RawFormatError(exc.problem, raw.source) from None
+    crop = raw.metadata.get("sensor_crop")
+    if crop and sensor_size:
+        hflip, vflip = raw.metadata.get("sensor_flips") or (False, False)
+        source = raw.metadata.get("geometry_source", "file")
+        try:
+            mode = mode_from_crop(sensor_size, size, tuple(crop), what="the recorded sensor crop")
+        except PicamcalError as exc:
+            raise RawFormatError(exc.problem, raw.source) from None
+        return replace(mode, hflip=bool(hflip), vflip=bool(vflip), bit_depth=raw.bit_depth, source=source)
+    if not recorded:
+        mode = registry_mode(raw.sensor, *size, raw.bit_depth)
+        if mode is not None:
+            return mode
+    if sensor_size is None:
+        return SensorMode.full(*size, bit_depth=raw.bit_depth)
+    binning = full_field_binning(sensor_size, size)
+    if binning is None:
+        modes = f" ({mode_names(entry.name)})" if entry and not recorded else ""
+        raise RawFormatError(
+            f"a {size[0]}x{size[1]} frame is not a mode picamcal knows of the {raw.sensor or 'sensor'}{modes}: give "
+            "the sensor area it was read from with --sensor-crop X,Y,WIDTH,HEIGHT (full-sensor pixels)",
+            raw.source,
+        )
+    return SensorMode.full(*sensor_size, binning=binning, bit_depth=raw.bit_depth)

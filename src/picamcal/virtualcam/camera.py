@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ..export.isp import SensorMode
+from ..geometry import SensorMode
 from .buffers import FrameMetadataStatus
 from .config import (
     CameraConfiguration,

@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from .._rows import in_row_blocks
-from ..export.isp import SensorMode, channel_tables, table_to_pixels
+from ..export.isp import channel_tables, table_to_pixels
+from ..geometry import SensorMode
 from ..raw.model import site_channels
 from ..raw.packing import pack
 from ..raw.picamera2.pisp import pisp_compress

@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from ..errors import PicamcalError
-from ..sensors import SENSORS, get_sensor
+from ..sensors import DRIVER_MODES, SENSORS, DriverMode, get_sensor
 
 
 @dataclass(frozen=True)
@@ -160,64 +160,53 @@ class SensorSpec:
         return self.gain(self.gain_codes[0]), self.gain(self.gain_codes[1])
 
 
-def _mode(
-    width: int, height: int, bits: int, crop: tuple[int, int, int, int], line_length: int, rate: float, fps: float
-) -> ModeSpec:
-    """A mode whose shortest frame is the driver's ``timeperframe_min`` (frame length rounded down, at least the
-    height, as the drivers' ``get_frame_length`` rounds it)."""
-    lines = max(height, math.floor(rate / (fps * line_length)))
-    return ModeSpec(width, height, bits, crop, line_length, rate, lines)
+def _mode(mode: DriverMode, line_length: int, rate: float, fps: float) -> ModeSpec:
+    """A registry mode with its timing; its shortest frame is the driver's ``timeperframe_min`` (frame length
+    rounded down, at least the height, as the drivers' ``get_frame_length`` rounds it)."""
+    lines = max(mode.height, math.floor(rate / (fps * line_length)))
+    return ModeSpec(mode.width, mode.height, mode.bit_depth, mode.crop, line_length, rate, lines)
+
+
+def _timed(name: str, timing: dict[tuple[int, int], tuple[int, float, float]]) -> tuple[ModeSpec, ...]:
+    """The registry's modes of a sensor (:data:`picamcal.sensors.DRIVER_MODES`: size, bit depth, crop) with the
+    timing of each size: line length in pixel clocks, pixel rate, fastest frame rate."""
+    return tuple(_mode(m, *timing[(m.width, m.height)]) for m in DRIVER_MODES[name])
 
 
 def _imx477() -> tuple[ModeSpec, ...]:
-    # imx477.c: pixel rate fixed at 840 MHz; supported_modes_12bit and _10bit (crop relative to the active array,
-    # i.e. without IMX477_PIXEL_ARRAY_LEFT/TOP).
+    # imx477.c: pixel rate fixed at 840 MHz; line lengths and frame rates of supported_modes_12bit and _10bit.
     rate = 840e6
-    full = (0, 0, 4056, 3040)
-    return (
-        _mode(1332, 990, 10, (696, 528, 2664, 1980), 6664, rate, 120.0),
-        _mode(2028, 1080, 12, (0, 440, 4056, 2160), 12740, rate, 50.0),
-        _mode(2028, 1520, 12, full, 12740, rate, 40.0),
-        _mode(4056, 3040, 12, full, 24000, rate, 10.0),
-    )
+    return _timed(
+        "imx477",
+        {(1332, 990): (6664, rate, 120.0), (2028, 1080): (12740, rate, 50.0), (2028, 1520): (12740, rate, 40.0),
+         (4056, 3040): (24000, rate, 10.0)},
+    )  # fmt: skip
 
 
 def _imx219() -> tuple[ModeSpec, ...]:
-    # imx219.c: 182.4 MHz (2 lanes), line length IMX219_PPL_DEFAULT 3448, IMX219_VBLANK_MIN 32; the same four modes
-    # in 10 and 8 bits (imx219_mbus_formats).
-    modes = []
-    for bits in (8, 10):
-        for w, h, crop in (
-            (640, 480, (1000, 752, 1280, 960)),
-            (1640, 1232, (0, 0, 3280, 2464)),
-            (1920, 1080, (680, 692, 1920, 1080)),
-            (3280, 2464, (0, 0, 3280, 2464)),
-        ):
-            modes.append(ModeSpec(w, h, bits, crop, 3448, 182.4e6, h + 32))
-    return tuple(modes)
+    # imx219.c: 182.4 MHz (2 lanes), line length IMX219_PPL_DEFAULT 3448, IMX219_VBLANK_MIN 32 for every mode.
+    return tuple(ModeSpec(m.width, m.height, m.bit_depth, m.crop, 3448, 182.4e6, m.height + 32)
+                 for m in DRIVER_MODES["imx219"])  # fmt: skip
 
 
 def _imx708() -> tuple[ModeSpec, ...]:
     # imx708.c (non-HDR 10-bit modes): 595.2 MHz, line_length_pix 0x3d20, 0x1e90, 0x1460; the frame rates libcamera
     # lists for them.
     rate = 595.2e6
-    full = (0, 0, 4608, 2592)
-    return (
-        _mode(1536, 864, 10, (768, 432, 3072, 1728), 5216, rate, 120.13),
-        _mode(2304, 1296, 10, full, 7824, rate, 56.03),
-        _mode(4608, 2592, 10, full, 15648, rate, 14.35),
+    return _timed(
+        "imx708",
+        {(1536, 864): (5216, rate, 120.13), (2304, 1296): (7824, rate, 56.03), (4608, 2592): (15648, rate, 14.35)},
     )
 
 
 def _ov5647() -> tuple[ModeSpec, ...]:
     # ov5647.c ov5647_modes: per-mode pixel rate and HTS, the mode's default frame rates (the fastest the driver
     # allows); 10-bit SBGGR10 (GBRG on the Pi's module, see the registry).
-    return (
-        _mode(640, 480, 10, (16, 0, 2560, 1920), 1852, 55e6, 58.92),
-        _mode(1296, 972, 10, (0, 0, 2592, 1944), 1896, 81.666700e6, 43.25),
-        _mode(1920, 1080, 10, (348, 434, 1928, 1080), 2416, 81.666700e6, 30.62),
-        _mode(2592, 1944, 10, (0, 0, 2592, 1944), 2844, 87.5e6, 15.63),
-    )
+    return _timed(
+        "ov5647",
+        {(640, 480): (1852, 55e6, 58.92), (1296, 972): (1896, 81.666700e6, 43.25),
+         (1920, 1080): (2416, 81.666700e6, 30.62), (2592, 1944): (2844, 87.5e6, 15.63)},
+    )  # fmt: skip
 
 
 # name: (modes, native order, rotation, gain kind/base/codes, min exposure lines, integration diff, max frame lines,

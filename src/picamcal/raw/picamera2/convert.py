@@ -18,6 +18,7 @@ from .metadata import (
     SENSOR_BLACK_LEVEL_SITES,
     black_levels,
     exposure_metadata,
+    geometry_metadata,
     resolve_sensor,
     sensor_black_levels,
     site_names,
@@ -43,7 +44,8 @@ def from_picamera2(
         The raw stream configuration, ``picam2.camera_configuration()["raw"]``
         (``{"format": "SBGGR10_CSI2P", "size": (width, height), "stride": ..., "framesize": ...}``), or the whole
         camera configuration with ``"raw"`` and ``"sensor"`` (``{"bit_depth": 10, ...}``) keys. A ``"model"`` key
-        (picamera2's ``camera_properties["Model"]``, e.g. ``"imx708_wide"``) names the sensor.
+        (picamera2's ``camera_properties["Model"]``, e.g. ``"imx708_wide"``) names the sensor; ``"crop_limits"``
+        and ``"pixel_array_size"`` place the mode on the sensor (:func:`~.metadata.geometry_metadata`).
     metadata : mapping, optional
         The request metadata (``request.get_metadata()``). ``SensorBlackLevels`` (R, Gr, Gb, B on a 16-bit
         scale, 4096 = 64 at 10 bits) gives the black level of each 2x2 site; ``ExposureTime`` (µs),
@@ -102,6 +104,7 @@ def from_picamera2(
     if layout.packing == "pisp":
         meta["lossy_compression"] = "PISP_COMP1"
     meta.update(exposure_metadata(metadata, source))
+    meta.update(geometry_metadata(config, metadata, source))
     levels = sensor_black_levels(metadata, source)
     bayer, bit_depth, white = decode(layout, source)
     black, meta["black_level_source"] = black_levels(levels, layout.pattern, bit_depth, name)
@@ -205,6 +208,11 @@ def capture_raw(picam2: Any, *, sensor: str | None = None) -> RawImage:
     model = picam2.camera_properties.get("Model")
     if model is not None:
         config["model"] = model
+    # Where the mode lies on the sensor: the largest ScalerCrop of the configured mode is its crop (picamera2's
+    # sensor_modes call it crop_limits), on the pixel array whose size the camera's properties give.
+    scaler_crop = picam2.camera_controls.get("ScalerCrop")
+    if scaler_crop is not None and "PixelArraySize" in picam2.camera_properties:
+        config["crop_limits"], config["pixel_array_size"] = scaler_crop[1], picam2.camera_properties["PixelArraySize"]
     request = picam2.capture_request()
     try:  # decoded before the buffer goes back to the camera, in case the array shares its memory
         return from_picamera2(

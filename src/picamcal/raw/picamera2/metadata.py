@@ -146,3 +146,47 @@ def resolve_sensor(
                 require_colour_sensor(name, source)
                 return name, text
     return None, None
+
+
+def _box(value: Any, what: str, source: str) -> list[int]:
+    """A libcamera ``Rectangle`` as picamera2 gives it, ``(x, y, width, height)``, checked."""
+    if hasattr(value, "width") and hasattr(value, "x"):  # a libcamera Rectangle itself
+        value = (value.x, value.y, value.width, value.height)
+    if not isinstance(value, (list, tuple)) or len(value) != 4:
+        raise RawFormatError(f"{what} must be (x, y, width, height), not {short(value)}", source)
+    x, y, w, h = (integer(v, what, source, 0, 1 << 16) for v in value)
+    if min(w, h) < 1:
+        raise RawFormatError(f"{what} {short(value)} has no area", source)
+    return [x, y, w, h]
+
+
+def geometry_metadata(config: Mapping[str, Any], metadata: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """Where the frame lies on the sensor, as the camera says it, for ``RawImage.metadata``.
+
+    From what :func:`picamcal.raw.picamera2.capture_raw` adds to the configuration beside picamera2's own keys:
+    ``pixel_array_size`` (``camera_properties["PixelArraySize"]``) and ``crop_limits`` (the mode's area of the
+    sensor, the largest ``ScalerCrop``, as picamera2's ``sensor_modes`` give it), and the configuration's
+    ``transform`` (its ``hflip`` and ``vflip``); the request's ``ScalerCrop`` (the area the processed streams show)
+    is kept as ``scaler_crop``. Nothing when the configuration has no crop.
+
+    Examples
+    --------
+    >>> geometry_metadata({"pixel_array_size": (3280, 2464), "crop_limits": (680, 692, 1920, 1080)}, {}, "<x>")
+    {'sensor_size': [3280, 2464], 'sensor_crop': [680, 692, 1920, 1080], 'sensor_flips': [False, False], \
+'geometry_source': 'camera'}
+    """
+    meta: dict[str, Any] = {}
+    limits, array = config.get("crop_limits"), config.get("pixel_array_size")
+    if limits is not None and array is not None:
+        if hasattr(array, "width"):  # a libcamera Size
+            array = (array.width, array.height)
+        if not isinstance(array, (list, tuple)) or len(array) != 2:
+            raise RawFormatError(f"PixelArraySize must be (width, height), not {short(array)}", source)
+        meta["sensor_size"] = [integer(v, "PixelArraySize", source, 1, 1 << 16) for v in array]
+        meta["sensor_crop"] = _box(limits, "the mode's crop limits", source)
+        transform = config.get("transform")
+        meta["sensor_flips"] = [bool(getattr(transform, "hflip", False)), bool(getattr(transform, "vflip", False))]
+        meta["geometry_source"] = "camera"
+    if metadata.get("ScalerCrop") is not None:
+        meta["scaler_crop"] = _box(metadata["ScalerCrop"], "ScalerCrop", source)
+    return meta

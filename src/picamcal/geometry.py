@@ -1,0 +1,423 @@
+"""Where on the sensor an image was taken: the sensor mode as one value, carried from the file to the correction.
+
+A raw frame comes from a sensor mode: an area of the sensor's pixel array (the mode's crop, libcamera's
+``analogCrop``), read out whole or binned, maybe mirrored. libcamera describes it with ``IPACameraSensorInfo``
+(``include/libcamera/ipa/core.mojom``) and the Raspberry Pi IPA's ``CameraMode`` (``src/ipa/rpi/controller/
+camera_mode.h``: crop, scale, transform); its lens shading works from that alone (``resampleCalTable`` in
+``src/ipa/rpi/controller/rpi/alsc.cpp``). :class:`SensorMode` is picamcal's value for it, made once where the file
+or the camera says it (:func:`raw_geometry`), recorded with the :class:`~picamcal.calibration.Calibration`, and
+taken by every resampling between modes (:func:`image_to_image`).
+
+Coordinates are continuous: pixel ``i`` of an image spans ``[i, i + 1)``; a mode's crop is in full-sensor pixels
+(as libcamera's ``analogCrop`` and picamera2's ``crop_limits`` and ``ScalerCrop`` are); flips mirror the image
+inside its crop, as libcamera's ``CameraMode::transform`` mirrors the lens shading tables.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from .errors import PicamcalError
+from .sensors import SENSORS, DriverMode, sensor_modes
+
+#: Where a :class:`SensorMode` came from, and what each means.
+GEOMETRY_SOURCES: dict[str, str] = {
+    "camera": "the camera said (picamera2's sensor mode, crop limits and transform)",
+    "file": "the file records it",
+    "given": "given by the user (--sensor-crop or --sensor-mode)",
+    "registry": "the sensor's mode of this size in picamcal's registry (the file records no crop)",
+    "assumed": "nothing says: the whole sensor is assumed",
+    "unknown": "geometry unknown (a calibration from before it was recorded): taken as the full sensor",
+}
+
+Box = tuple[int, int, int, int]
+
+
+@dataclass(frozen=True)
+class SensorMode:
+    """Where a sensor mode's image lies on the full sensor (libcamera's ``CameraMode``).
+
+    Attributes
+    ----------
+    sensor_width, sensor_height : int
+        Full sensor (active pixel array) size in pixels.
+    crop : (x, y, width, height)
+        The sensor area the mode reads, in full-sensor pixels.
+    binning : int
+        Binning or scaling factor from that area to the mode's image (1 unbinned, 2 for 2 x 2).
+    hflip, vflip : bool
+        Mirroring of the mode's image (libcamera's transform of the mode; the lens shading tables follow it).
+    bit_depth : int or None
+        Bits per pixel of the mode, when known.
+    source : str
+        Where this value came from, one of :data:`GEOMETRY_SOURCES`.
+
+    Examples
+    --------
+    >>> mode = SensorMode(3280, 2464, (680, 692, 1920, 1080), bit_depth=10, source="registry")
+    >>> mode.width, mode.height, mode.is_full
+    (1920, 1080, False)
+    >>> print(mode.describe())
+    1920x1080 from the 1920x1080 crop at (680, 692) of the 3280x2464 sensor, 10 bits (registry)
+    """
+
+    sensor_width: int
+    sensor_height: int
+    crop: Box
+    binning: int = 1
+    hflip: bool = False
+    vflip: bool = False
+    bit_depth: int | None = None
+    source: str = "assumed"
+
+    def __post_init__(self) -> None:
+        x, y, w, h = self.crop
+        if min(self.sensor_width, self.sensor_height, w, h, self.binning) < 1 or x < 0 or y < 0:
+            raise PicamcalError(f"sensor crop {list(self.crop)} is not an area of a sensor")
+        if x + w > self.sensor_width or y + h > self.sensor_height:
+            raise PicamcalError(
+                f"sensor crop {list(self.crop)} lies outside the {self.sensor_width}x{self.sensor_height} sensor"
+            )
+        if self.source not in GEOMETRY_SOURCES:
+            raise PicamcalError(f"unknown geometry source {self.source!r}")
+
+    @classmethod
+    def full(
+        cls, width: int, height: int, *, binning: int = 1, bit_depth: int | None = None, source: str = "assumed"
+    ) -> SensorMode:
+        """The whole of a ``width`` x ``height`` sensor, read out at ``binning``."""
+        return cls(width, height, (0, 0, width, height), binning, bit_depth=bit_depth, source=source)
+
+    @property
+    def width(self) -> int:
+        """Image width of the mode."""
+        return self.crop[2] // self.binning
+
+    @property
+    def height(self) -> int:
+        """Image height of the mode."""
+        return self.crop[3] // self.binning
+
+    @property
+    def sensor_size(self) -> tuple[int, int]:
+        """(width, height) of the full sensor."""
+        return self.sensor_width, self.sensor_height
+
+    @property
+    def is_full(self) -> bool:
+        """The mode reads the whole sensor (binned or not)."""
+        return self.crop == (0, 0, self.sensor_width, self.sensor_height)
+
+    def area(self) -> tuple[int, int, Box, int, bool, bool]:
+        """What places the image on the sensor (everything but the bit depth and the source), for comparisons."""
+        return self.sensor_width, self.sensor_height, self.crop, self.binning, self.hflip, self.vflip
+
+    def contains(self, box: Box, tolerance: int = 0) -> bool:
+        """Whether the sensor area ``box`` (x, y, width, height, full-sensor pixels) lies inside this mode's crop,
+        give or take ``tolerance`` pixels."""
+        x, y, w, h = self.crop
+        bx, by, bw, bh = box
+        t = tolerance
+        return bx >= x - t and by >= y - t and bx + bw <= x + w + t and by + bh <= y + h + t
+
+    def describe(self) -> str:
+        """One line: the image size, where it lies on the sensor, and where that came from."""
+        x, y, w, h = self.crop
+        where = f"the {w}x{h} crop at ({x}, {y})" if not self.is_full else "the whole"
+        binning = f", {self.binning}x{self.binning} binned" if self.binning > 1 else ""
+        flips = [name for name, on in (("h", self.hflip), ("v", self.vflip)) if on]
+        flipped = f", {'+'.join(flips)}flip" if flips else ""
+        bits = f", {self.bit_depth} bits" if self.bit_depth else ""
+        return (
+            f"{self.width}x{self.height} from {where} of the {self.sensor_width}x{self.sensor_height} sensor"
+            f"{binning}{flipped}{bits} ({self.source})"
+        )
+
+    def to_record(self) -> dict[str, Any]:
+        """The JSON record of a calibration's ``geometry``.
+
+        Examples
+        --------
+        >>> SensorMode.full(640, 480).to_record()["crop"]
+        [0, 0, 640, 480]
+        """
+        return {
+            "sensor_size": [self.sensor_width, self.sensor_height],
+            "crop": list(self.crop),
+            "binning": self.binning,
+            "hflip": self.hflip,
+            "vflip": self.vflip,
+            "bit_depth": self.bit_depth,
+            "source": self.source,
+        }
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, Any]) -> SensorMode:
+        """The value of a record :meth:`to_record` wrote (its types checked by the calibration's schema)."""
+        width, height = (int(v) for v in record["sensor_size"])
+        x, y, w, h = (int(v) for v in record["crop"])
+        bits = record.get("bit_depth")
+        return cls(
+            width,
+            height,
+            (x, y, w, h),
+            int(record.get("binning", 1)),
+            bool(record.get("hflip", False)),
+            bool(record.get("vflip", False)),
+            None if bits is None else int(bits),
+            str(record.get("source", "file")),
+        )
+
+
+def _driver_geometry(sensor_size: tuple[int, int], mode: DriverMode, source: str) -> SensorMode:
+    binning = max(1, round(mode.crop[2] / mode.width))
+    return SensorMode(*sensor_size, mode.crop, binning, bit_depth=mode.bit_depth, source=source)
+
+
+def registry_mode(
+    sensor: str | None, width: int, height: int, bit_depth: int | None = None, *, source: str = "registry"
+) -> SensorMode | None:
+    """The registry's mode of ``sensor`` that gives a ``width`` x ``height`` image, or None.
+
+    Examples
+    --------
+    >>> registry_mode("imx219", 1920, 1080).crop
+    (680, 692, 1920, 1080)
+    >>> registry_mode("imx219", 1640, 1232).binning, registry_mode("imx219", 1000, 1000)
+    (2, None)
+    """
+    entry = SENSORS.get(sensor or "")
+    if entry is None:
+        return None
+    matches = [m for m in sensor_modes(entry.name) if (m.width, m.height) == (width, height)]
+    if bit_depth is not None:
+        matches = sorted(matches, key=lambda m: m.bit_depth != bit_depth)
+    return _driver_geometry((entry.width, entry.height), matches[0], source) if matches else None
+
+
+def mode_names(sensor: str) -> str:
+    """The sizes of a registry sensor's modes, for messages (``"640x480, 1640x1232, 1920x1080, 3280x2464"``)."""
+    sizes = sorted({(m.width, m.height) for m in sensor_modes(sensor)})
+    return ", ".join(f"{w}x{h}" for w, h in sizes)
+
+
+def mode_from_crop(
+    sensor_size: tuple[int, int], image_size: tuple[int, int], crop: Box, *, what: str = "--sensor-crop"
+) -> SensorMode:
+    """The mode of an image of ``image_size`` read from the sensor area ``crop`` (binning from their ratio).
+
+    Raises
+    ------
+    PicamcalError
+        The crop lies outside the sensor, or the image cannot come from it (its size is not the crop's divided by a
+        whole binning); the message names ``what``.
+
+    Examples
+    --------
+    >>> mode_from_crop((3280, 2464), (640, 480), (1000, 752, 1280, 960)).binning
+    2
+    """
+    (sw, sh), (w, h) = sensor_size, image_size
+    x, y, cw, ch = (int(v) for v in crop)
+    if min(x, y) < 0 or min(cw, ch) < 1 or x + cw > sw or y + ch > sh:
+        raise PicamcalError(f"{what} {x},{y},{cw},{ch} lies outside the {sw}x{sh} sensor")
+    binning = max(1, round(cw / w))
+    if abs(cw / binning - w) > 1 or abs(ch / binning - h) > 1:
+        raise PicamcalError(
+            f"{what} {x},{y},{cw},{ch}: a {w}x{h} image cannot come from a {cw}x{ch} sensor area (not a whole "
+            "binning of it)"
+        )
+    return SensorMode(sw, sh, (x, y, cw, ch), binning, source="given")
+
+
+def mode_for_image(sensor_size: tuple[int, int], image_size: tuple[int, int], crop: Box | None = None) -> SensorMode:
+    """The sensor mode an image of ``image_size`` comes from: full size, a binned full field, or an explicit crop.
+
+    Raises
+    ------
+    PicamcalError
+        The image is neither the full sensor nor an integer binning of it, and no crop is given.
+
+    Examples
+    --------
+    >>> mode_for_image((3280, 2464), (1640, 1232)).binning
+    2
+    """
+    if crop is not None:
+        return mode_from_crop(sensor_size, image_size, crop)
+    binning = full_field_binning(sensor_size, image_size)
+    if binning is None:
+        (sw, sh), (w, h) = sensor_size, image_size
+        raise PicamcalError(
+            f"a {w}x{h} image is not the full {sw}x{sh} sensor or a binned copy of it: give the sensor crop of its "
+            "mode (--sensor-crop X,Y,WIDTH,HEIGHT in full-sensor pixels)"
+        )
+    return SensorMode.full(*sensor_size, binning=binning)
+
+
+def full_field_binning(sensor_size: tuple[int, int], image_size: tuple[int, int]) -> int | None:
+    """The binning (1 to 4) that makes the whole sensor an image of ``image_size``, or None."""
+    (sw, sh), (w, h) = sensor_size, image_size
+    for binning in (1, 2, 3, 4):
+        if (sw // binning, sh // binning) == (w, h) or (-(-sw // binning), -(-sh // binning)) == (w, h):
+            return binning
+    return None
+
+
+def assumed_geometry(
+    sensor: str | None, width: int, height: int, bit_depth: int | None = None, *, source: str = "assumed"
+) -> SensorMode:
+    """The geometry taken when nothing says it: the whole sensor (the registry's, binned to this size if it is a
+    binned copy of it; else a sensor of this very size).
+
+    Examples
+    --------
+    >>> assumed_geometry("imx219", 1640, 1232).binning, assumed_geometry("imx219", 1920, 1080).sensor_size
+    (2, (1920, 1080))
+    """
+    entry = SENSORS.get(sensor or "")
+    binning = full_field_binning(entry.size, (width, height)) if entry else None
+    if entry is None or binning is None:
+        return SensorMode.full(width, height, bit_depth=bit_depth, source=source)
+    return SensorMode.full(*entry.size, binning=binning, bit_depth=bit_depth, source=source)
+
+
+def image_to_image(
+    source: SensorMode, target: SensorMode, size: tuple[int, int] | None = None
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The affine map from an image of ``source`` to one of ``target``, per axis: ``u_t = a u_s + b``.
+
+    Coordinates are continuous (pixel ``i`` spans ``[i, i + 1)``); ``size`` is the source image's size when it is
+    not the mode's own (a processed stream the ISP scaled from the mode). Both modes must be of one sensor.
+
+    Examples
+    --------
+    >>> full = SensorMode.full(3280, 2464)
+    >>> binned = SensorMode.full(3280, 2464, binning=2)
+    >>> image_to_image(binned, full)  # x and y double
+    ((2.0, 0.0), (2.0, 0.0))
+    >>> image_to_image(SensorMode(3280, 2464, (680, 692, 1920, 1080)), full)[0]  # the crop starts at x = 680
+    (1.0, 680.0)
+    """
+    width, height = size or (source.width, source.height)
+    axes = []
+    for axis in (0, 1):
+        n_source = (width, height)[axis]
+        s0, s_len = source.crop[axis], source.crop[axis + 2]
+        t0, t_len = target.crop[axis], target.crop[axis + 2]
+        t_n = (target.width, target.height)[axis]
+        s_flip = (source.hflip, source.vflip)[axis]
+        t_flip = (target.hflip, target.vflip)[axis]
+        # sensor = s0 + (n - u if flipped else u) * s_len / n; target u = (sensor - t0) * t_n / t_len, mirrored
+        a = s_len / n_source * (-1 if s_flip else 1)
+        b = s0 + (s_len if s_flip else 0.0)
+        scale = t_n / t_len
+        a, b = a * scale, (b - t0) * scale
+        if t_flip:
+            a, b = -a, t_n - b
+        axes.append((float(a), float(b)))
+    return axes[0], axes[1]
+
+
+def sensor_area(mode: SensorMode, box: tuple[float, float, float, float]) -> Box:
+    """The sensor area (full-sensor pixels, rounded outwards) of a box (x, y, width, height) of the mode's image.
+
+    Examples
+    --------
+    >>> sensor_area(SensorMode.full(3280, 2464, binning=2), (0, 0, 1640, 1232))
+    (0, 0, 3280, 2464)
+    """
+    full = SensorMode.full(mode.sensor_width, mode.sensor_height)
+    (ax, bx), (ay, by) = image_to_image(mode, full)
+    x, y, w, h = box
+    xs = sorted((ax * x + bx, ax * (x + w) + bx))
+    ys = sorted((ay * y + by, ay * (y + h) + by))
+    x0, y0 = math.floor(xs[0] + 1e-6), math.floor(ys[0] + 1e-6)
+    return x0, y0, math.ceil(xs[1] - 1e-6) - x0, math.ceil(ys[1] - 1e-6) - y0
+
+
+def parse_sensor_crop(text: str | None, what: str = "--sensor-crop") -> Box | None:
+    """``"X,Y,WIDTH,HEIGHT"`` as four whole numbers (X, Y at least 0, WIDTH, HEIGHT above 0), or None.
+
+    Raises
+    ------
+    PicamcalError
+        Not four such numbers; the message names ``what``.
+
+    Examples
+    --------
+    >>> parse_sensor_crop("680,692,1920,1080")
+    (680, 692, 1920, 1080)
+    """
+    if text is None:
+        return None
+    parts = [p.strip() for p in str(text).replace("x", ",").split(",")]
+    try:
+        values = [int(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) != 4 or min(values[:2]) < 0 or min(values[2:]) < 1:
+        raise PicamcalError(
+            f"{what} {text!r}: give X,Y,WIDTH,HEIGHT in full-sensor pixels, whole numbers (X and Y from 0)"
+        )
+    return values[0], values[1], values[2], values[3]
+
+
+def parse_sensor_mode(text: str | None, what: str = "--sensor-mode") -> tuple[int, int, int | None] | None:
+    """``"WIDTHxHEIGHT"`` or ``"WIDTHxHEIGHT:BITS"`` as (width, height, bits or None), or None.
+
+    Examples
+    --------
+    >>> parse_sensor_mode("1920x1080:10"), parse_sensor_mode("1640x1232")
+    ((1920, 1080, 10), (1640, 1232, None))
+    """
+    if text is None:
+        return None
+    size, _, bits = str(text).strip().partition(":")
+    w, _, h = size.lower().partition("x")
+    try:
+        values = (int(w), int(h), int(bits) if bits else None)
+    except ValueError:
+        values = (0, 0, None)
+    if values[0] < 1 or values[1] < 1 or (values[2] is not None and not 1 <= values[2] <= 16):
+        raise PicamcalError(f"{what} {text!r}: give the mode's size as WIDTHxHEIGHT, optionally :BITS (1920x1080:10)")
+    return values
+
+
+def named_mode(sensor: str | None, text: str, what: str = "--sensor-mode") -> SensorMode:
+    """The registry mode a ``--sensor-mode WxH[:BITS]`` option names.
+
+    Raises
+    ------
+    PicamcalError
+        The sensor is not known, or has no such mode; the message lists the modes it has.
+
+    Examples
+    --------
+    >>> named_mode("imx477", "1332x990").crop
+    (696, 528, 2664, 1980)
+    """
+    parsed = parse_sensor_mode(text, what)
+    assert parsed is not None
+    width, height, bits = parsed
+    entry = SENSORS.get(sensor or "")
+    if entry is None:
+        raise PicamcalError(
+            f"{what} {text}: the sensor is {'not known' if not sensor else sensor + ', not in the registry'}, so "
+            "its modes are not either: give --sensor-crop X,Y,WIDTH,HEIGHT instead"
+        )
+    matches = [m for m in sensor_modes(entry.name) if (m.width, m.height) == (width, height)]
+    if bits is not None:
+        matches = [m for m in matches if m.bit_depth == bits]
+    if not matches:
+        modes = ", ".join(f"{m.width}x{m.height}:{m.bit_depth}" for m in sensor_modes(entry.name))
+        raise PicamcalError(f"{what} {text}: the {entry.name} has no such mode (it has {modes})")
+    return _driver_geometry((entry.width, entry.height), matches[0], "given")
+
+
+def with_source(mode: SensorMode, source: str) -> SensorMode:
+    """The same mode, said to come from ``source``."""
+    return replace(mode, source=source)
