@@ -31,8 +31,9 @@ from .bayer import bin_sites, centre_region, sites_to_channels
 from .calibration import Calibration
 from .calibration.fitting import least_squares_unmixing, noise_limited_unmixing
 from .errors import CalibrationFileError, CalibrationInputError, PicamcalWarning
+from .geometry import SensorMode
 from .raw import RawImage, read_raw
-from .raw.model import require_black_level
+from .raw.model import raw_geometry, require_black_level
 from .records import sha256_file
 from .references import COLOUR_NAME, COLOURS, check_same_settings, colour_role
 
@@ -316,6 +317,7 @@ def calibrate(
     max_noise_penalty: float | None = None,
     bin_size: int = 16,
     smoothing: float = 0.0,
+    geometry: SensorMode | None = None,
 ) -> Calibration:
     """Measure the flat field and, with colour references, the colour-unmixing field.
 
@@ -367,6 +369,10 @@ def calibrate(
         Standard deviation in bins of a Gaussian applied to the binned responses (0 = none; the
         paper's code used 3 on the matrix field); at most a quarter of the bin grid's shorter side
         (:func:`check_smoothing`).
+    geometry : SensorMode, optional
+        Where on the sensor the references were taken (``--sensor-crop``, ``--sensor-mode``:
+        :func:`picamcal.raw.model.raw_geometry`); by default what the white's file or camera says, else the
+        registry's mode of its size, else the whole sensor. Recorded as :attr:`Calibration.geometry`.
 
     Returns
     -------
@@ -375,7 +381,7 @@ def calibrate(
     Raises
     ------
     CalibrationInputError
-        References of different size or pattern, a saturated or too-dark white, black brighter than
+        References of different size, pattern or sensor mode, a saturated or too-dark white, black brighter than
         white, only some of the colour references, too many bins whose colour response cannot be inverted, or a
         smoothing out of range. Extra colour references without red, green and blue, with a bad or repeated
         name, too dark (brightest site's median under :data:`REFUSE_WHITE_FRACTION` of the range) or identical
@@ -431,6 +437,7 @@ def calibrate(
         raise CalibrationInputError(f"{what} need the colour unmixing: give red, green and blue references too")
     named = {"white": white, **primaries, **extras, "black": black}
     refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, bin_size, smoothing)
+    geometry = _geometry(refs, geometry)
     lights = refs[:-1] if black is not None else refs
     _check_distinct(lights)
     site_responses, black_level = _binned_responses(refs, black is not None, smoothing)
@@ -455,7 +462,7 @@ def calibrate(
             arrays["pure_unmixing"] = (arrays["colour_response_inverse"] @ arrays["unmixing"]).astype(np.float32)
     return Calibration(
         kind="full" if "unmixing" in arrays else "flat",
-        **_record(refs, bin_size, smoothing, black_level),
+        **_record(refs, bin_size, smoothing, black_level, geometry),
         provenance=provenance,
         **arrays,
     )
@@ -585,6 +592,18 @@ def calibrate_in_situ(
     if jig.noise_limit is not None:  # the jig's bounded unmixing carries over; its bound was met with the jig's white
         provenance["in_situ"]["jig_noise_limit"] = jig.noise_limit
     record = _record(refs, jig.bin_size, smoothing, black_level)
+    if record["geometry"].source == "assumed" and jig.geometry and jig.geometry.source != "assumed":
+        record["geometry"] = jig.geometry  # the jig's word where the white's file says nothing
+    elif (
+        jig.geometry
+        and jig.geometry.source not in ("assumed", "unknown")
+        and (record["geometry"].area() != jig.geometry.area())
+    ):
+        raise CalibrationInputError(
+            f"the white does not fit the jig calibration: it is {record['geometry'].describe()}, the jig's "
+            f"{jig.geometry.describe()}",
+            first.source,
+        )
     if jig.sensor and (record["sensor"] is None or _sensor_by_size(first)):  # the jig's, where the white does not say
         record["sensor"] = jig.sensor
     return dataclasses.replace(
@@ -760,10 +779,40 @@ def _sensor_by_size(raw: RawImage) -> bool:
     return raw.metadata.get("sensor_source") == "size"
 
 
-def _record(refs: list[_Reference], bin_size: int, smoothing: float, black_level: tuple[float, ...]) -> dict[str, Any]:
+def _geometry(refs: list[_Reference], given: SensorMode | None) -> SensorMode:
+    """Where the references lie on the sensor: ``given``, else the white's (:func:`raw_geometry`), which every other
+    reference whose file says must share."""
+    first = refs[0].raw
+    if given is not None:
+        if (given.width, given.height) != (first.width, first.height):
+            raise CalibrationInputError(
+                f"the frames are {first.width}x{first.height}, the sensor mode given is {given.width}x{given.height}",
+                first.source,
+            )
+        return given
+    geometry = raw_geometry(first)
+    for ref in refs[1:]:
+        other = raw_geometry(ref.raw)
+        if other.area() != geometry.area():
+            raise CalibrationInputError(
+                f"references from different sensor modes: {Path(first.source).name} is {geometry.describe()}, "
+                f"{Path(ref.raw.source).name} is {other.describe()}; take every reference in one mode",
+                ref.raw.source,
+            )
+    return geometry
+
+
+def _record(
+    refs: list[_Reference],
+    bin_size: int,
+    smoothing: float,
+    black_level: tuple[float, ...],
+    geometry: SensorMode | None = None,
+) -> dict[str, Any]:
     """The calibration's record fields (geometry and levels) from its references, the white first."""
     first = refs[0].raw
     return {
+        "geometry": geometry or _geometry(refs, None),
         # A sensor a file names (or --sensor) before one taken from a frame's size.
         "sensor": next((r.sensor for r in sorted((r.raw for r in refs), key=_sensor_by_size) if r.sensor), None),
         "pattern": first.pattern,

@@ -28,8 +28,10 @@ from numpy.typing import DTypeLike
 
 from .bayer import bin_centres, bin_sites, block_mean, centre_region, sites_to_channels
 from .calibration import Calibration
+from .calibration.resample import calibration_for_raw
 from .ckernel import correct_c
 from .errors import KernelBuildError, PicamcalError
+from .geometry import SensorMode
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from .kernels import (
     CorrectionFields,
@@ -254,14 +256,17 @@ def correct(
     engine: str = "auto",
     out: np.ndarray | None = None,
     dtype: DTypeLike = np.float32,
+    geometry: SensorMode | None = None,
 ) -> np.ndarray:
     """Correct a raw image's vignetting and colour crosstalk.
 
     Parameters
     ----------
     raw : RawImage
-        The image, from the same sensor, size and Bayer pattern as the calibration's references. An unknown
-        (NaN) black level takes the calibration's dark-frame level (:func:`with_known_black_level`).
+        The image, from the calibration's sensor: of its sensor mode, or of any mode inside the calibration's crop
+        (binned, cropped, flipped: the calibration's fields are taken at the frame's sensor positions,
+        :func:`picamcal.calibration.resample.calibration_for_raw`). An unknown (NaN) black level takes the
+        calibration's dark-frame level (:func:`with_known_black_level`).
     calibration : Calibration
         From :func:`picamcal.calibrate` or :func:`picamcal.load_calibration`.
     mode : {"centre", "flat", "pure", "uncorrected"} or Mode, optional
@@ -285,6 +290,9 @@ def correct(
         :data:`UINT16_WHITE` ``)`` clipped to 0..65535, NaN as 0, bit for bit those of
         :func:`picamcal.output.tiff.encode_uint16` of the float32 result, but computed row by row with no
         float32 image at full resolution (half the memory). Not with ``binned``.
+    geometry : SensorMode, optional
+        The frame's sensor mode (``--sensor-crop``, ``--sensor-mode``: :func:`picamcal.raw.model.raw_geometry`);
+        by default what its file says, else the registry's mode of its size.
 
     Returns
     -------
@@ -323,7 +331,7 @@ def correct(
     to_codes = np.dtype(dtype) == np.uint16
     if not to_codes and np.dtype(dtype) != np.float32:
         raise ValueError(f"dtype must be numpy.float32 or numpy.uint16, not {np.dtype(dtype)}")
-    calibration.check_compatible(raw)
+    calibration = calibration_for_raw(calibration, raw, geometry)
     matrices = calibration.matrices(mode)
     raw = with_known_black_level(raw, calibration)
     if binned:

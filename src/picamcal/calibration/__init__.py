@@ -566,16 +566,17 @@ picamcal calibrate --white WHITE --unmixing-from JIG.npz
             unmixing.colour_response_inverse,
         )
 
-    def check_compatible(self, raw: RawImage) -> None:
-        """Raise CalibrationFileError if ``raw`` is not from the sensor, size and pattern this calibration is for
-        (a frame of another sensor mode is first resampled: :func:`picamcal.correct.calibration_for_raw`)."""
+    def check_compatible(self, raw: RawImage, *, same_mode: bool = True) -> None:
+        """Raise CalibrationFileError if ``raw`` is not from the sensor this calibration is for, or (``same_mode``)
+        not of its size and pattern (a frame of another sensor mode is resampled to first:
+        :func:`picamcal.calibration.resample.calibration_for_raw`)."""
         problems = []
         by_size = raw.metadata.get("sensor_source") == "size"  # taken from the frame's size: the calibration says
         if self.sensor and raw.sensor and raw.sensor != self.sensor and not by_size:
             problems.append(f"sensor {raw.sensor}, calibration is for {self.sensor}")
-        if (raw.width, raw.height) != (self.width, self.height):
+        if same_mode and (raw.width, raw.height) != (self.width, self.height):
             problems.append(f"size {raw.width}x{raw.height}, calibration is for {self.width}x{self.height}")
-        elif raw.pattern != self.pattern:
+        elif same_mode and raw.pattern != self.pattern:
             problems.append(f"Bayer pattern {raw.pattern}, calibration is for {self.pattern}")
         if problems:
             raise CalibrationFileError("image does not match the calibration: " + "; ".join(problems), raw.source)

@@ -17,7 +17,6 @@ from ..geometry import (
     SensorMode,
     full_field_binning,
     mode_from_crop,
-    mode_names,
     named_mode,
     registry_mode,
 )
@@ -312,15 +311,15 @@ def raw_geometry(
        captures and the DNGs picamcal writes of them, the simulator's frames);
     3. the registry's mode of the sensor of this size (rpicam-still and picamera2 DNGs, headless dumps: they record
        no crop), :func:`picamcal.geometry.registry_mode`;
-    4. the whole sensor, binned to the frame's size, or a sensor of the frame's size when it is not known
-       (``source`` ``"assumed"``).
+    4. the whole sensor, binned to the frame's size; else (an unknown sensor, or a size no mode of it gives) a
+       sensor of the frame's own size (``source`` ``"assumed"``: whatever uses it across modes asks for
+       ``--sensor-crop``).
 
     Raises
     ------
     RawFormatError
-        A crop outside the sensor or that cannot give the frame's size, a mode the sensor does not have or of
-        another size than the frame, or a frame no mode of its known sensor gives (the message lists the modes and
-        names the option that fixes it).
+        A crop outside the sensor or that cannot give the frame's size, or a mode the sensor does not have (the
+        message lists its modes) or of another size than the frame.
 
     Examples
     --------
@@ -367,14 +366,7 @@ def raw_geometry(
         mode = registry_mode(raw.sensor, *size, raw.bit_depth)
         if mode is not None:
             return mode
-    if sensor_size is None:
+    binning = full_field_binning(sensor_size, size) if sensor_size else None
+    if sensor_size is None or binning is None:  # a frame no known mode gives: a sensor of its own size
         return SensorMode.full(*size, bit_depth=raw.bit_depth)
-    binning = full_field_binning(sensor_size, size)
-    if binning is None:
-        modes = f" ({mode_names(entry.name)})" if entry and not recorded else ""
-        raise RawFormatError(
-            f"a {size[0]}x{size[1]} frame is not a mode picamcal knows of the {raw.sensor or 'sensor'}{modes}: give "
-            "the sensor area it was read from with --sensor-crop X,Y,WIDTH,HEIGHT (full-sensor pixels)",
-            raw.source,
-        )
     return SensorMode.full(*sensor_size, binning=binning, bit_depth=raw.bit_depth)
