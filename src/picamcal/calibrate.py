@@ -317,7 +317,8 @@ def calibrate(
     max_noise_penalty: float | None = None,
     bin_size: int = 16,
     smoothing: float = 0.0,
-    geometry: SensorMode | None = None,
+    sensor_crop: tuple[int, int, int, int] | None = None,
+    sensor_mode: str | None = None,
 ) -> Calibration:
     """Measure the flat field and, with colour references, the colour-unmixing field.
 
@@ -369,9 +370,10 @@ def calibrate(
         Standard deviation in bins of a Gaussian applied to the binned responses (0 = none; the
         paper's code used 3 on the matrix field); at most a quarter of the bin grid's shorter side
         (:func:`check_smoothing`).
-    geometry : SensorMode, optional
-        Where on the sensor the references were taken (``--sensor-crop``, ``--sensor-mode``:
-        :func:`picamcal.raw.model.raw_geometry`); by default what the white's file or camera says, else the
+    sensor_crop, sensor_mode : optional
+        Where on the sensor the references were taken, for files that do not say it: the area (x, y, width,
+        height, in full-sensor pixels) or the registry's mode (``"1920x1080"``, ``"1920x1080:10"``), as
+        :func:`picamcal.raw.model.raw_geometry` takes them. By default what the white's file or camera says, else the
         registry's mode of its size, else the whole sensor. Recorded as :attr:`Calibration.geometry`.
 
     Returns
@@ -437,7 +439,7 @@ def calibrate(
         raise CalibrationInputError(f"{what} need the colour unmixing: give red, green and blue references too")
     named = {"white": white, **primaries, **extras, "black": black}
     refs = _load_all({role: ref for role, ref in named.items() if ref is not None}, bin_size, smoothing)
-    geometry = _geometry(refs, geometry)
+    geometry = _geometry(refs, sensor_crop, sensor_mode)
     lights = refs[:-1] if black is not None else refs
     _check_distinct(lights)
     site_responses, black_level = _binned_responses(refs, black is not None, smoothing)
@@ -779,18 +781,15 @@ def _sensor_by_size(raw: RawImage) -> bool:
     return raw.metadata.get("sensor_source") == "size"
 
 
-def _geometry(refs: list[_Reference], given: SensorMode | None) -> SensorMode:
-    """Where the references lie on the sensor: ``given``, else the white's (:func:`raw_geometry`), which every other
-    reference whose file says must share."""
+def _geometry(
+    refs: list[_Reference], sensor_crop: tuple[int, int, int, int] | None = None, sensor_mode: str | None = None
+) -> SensorMode:
+    """Where the references lie on the sensor: the white's (:func:`raw_geometry`, with the user's options, which
+    then stand for every reference), which every other reference whose file says must share."""
     first = refs[0].raw
-    if given is not None:
-        if (given.width, given.height) != (first.width, first.height):
-            raise CalibrationInputError(
-                f"the frames are {first.width}x{first.height}, the sensor mode given is {given.width}x{given.height}",
-                first.source,
-            )
-        return given
-    geometry = raw_geometry(first)
+    geometry = raw_geometry(first, sensor_crop=sensor_crop, sensor_mode=sensor_mode)
+    if sensor_crop is not None or sensor_mode is not None:
+        return geometry
     for ref in refs[1:]:
         other = raw_geometry(ref.raw)
         if other.area() != geometry.area():
@@ -812,7 +811,7 @@ def _record(
     """The calibration's record fields (geometry and levels) from its references, the white first."""
     first = refs[0].raw
     return {
-        "geometry": geometry or _geometry(refs, None),
+        "geometry": geometry or _geometry(refs),
         # A sensor a file names (or --sensor) before one taken from a frame's size.
         "sensor": next((r.sensor for r in sorted((r.raw for r in refs), key=_sensor_by_size) if r.sensor), None),
         "pattern": first.pattern,

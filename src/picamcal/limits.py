@@ -43,6 +43,18 @@ def max_pixels() -> int:
     return limit
 
 
+class SizeBound(tuple):
+    """(height, width) that an image may be at most, rather than exactly: the ``expected_shape`` of a frame that may
+    be of any sensor mode inside a calibration's crop (:func:`check_size`; every reader passes it through).
+
+    Examples
+    --------
+    >>> check_size("binned.dng", 1640, 1232, SizeBound((2464, 3280)))
+    """
+
+    __slots__ = ()
+
+
 def check_size(
     path: str | os.PathLike[str],
     width: int,
@@ -61,7 +73,8 @@ def check_size(
     width, height : int
         The size the file declares, in pixels (the Bayer mosaic's, for a raw image).
     expected : (height, width), optional
-        The size the caller needs (the calibration's): a mismatch raises ``CalibrationFileError``.
+        The size the caller needs (the calibration's): a mismatch raises ``CalibrationFileError``; a
+        :class:`SizeBound` is the largest it may be.
     what : str
         What is being sized, for the message.
 
@@ -76,7 +89,14 @@ of 100 MP (set PICAMCAL_MAX_PIXELS to read larger images)
     """
     if not (isinstance(width, int) and isinstance(height, int)) or width <= 0 or height <= 0:
         raise RawFormatError(f"declares an {what} of {width}x{height} pixels", path)
-    if expected is not None and (height, width) != (int(expected[0]), int(expected[1])):
+    if isinstance(expected, SizeBound):
+        if width > expected[1] or height > expected[0]:
+            raise CalibrationFileError(
+                f"{what} does not match the calibration: size {width}x{height}, larger than any sensor mode inside the "
+                f"calibration's {expected[1]}x{expected[0]} sensor area",
+                path,
+            )
+    elif expected is not None and (height, width) != (int(expected[0]), int(expected[1])):
         raise CalibrationFileError(
             f"{what} does not match the calibration: size {width}x{height}, calibration is for "
             f"{int(expected[1])}x{int(expected[0])}",

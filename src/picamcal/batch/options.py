@@ -125,6 +125,11 @@ class BatchOptions:
     raw_format, raw_size, stride, frame, sensor : optional
         Read headless raw dumps (``rpicam-raw``): their libcamera format name, (width, height), row stride in
         bytes, frame number and sensor (:func:`picamcal.read_raw`'s ``raw_format``, ``size``, ...).
+    sensor_crop, sensor_mode : optional
+        The sensor mode the raw frames come from, for those whose files do not say it
+        (:func:`picamcal.raw.model.raw_geometry`): the area of the sensor (x, y, width, height, full-sensor
+        pixels) or the registry's mode (``"1920x1080"``, ``"1920x1080:10"``). A frame of any mode inside the
+        calibration's crop is corrected with it (:func:`picamcal.correct`).
     place : Path
         Not given but derived: where the outputs go (``zarr_path`` or ``out_dir``).
 
@@ -170,6 +175,8 @@ class BatchOptions:
     stride: int | None = None
     frame: int | None = None
     sensor: str | None = None
+    sensor_crop: tuple[int, int, int, int] | None = None
+    sensor_mode: str | None = None
     place: Path = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:

@@ -336,6 +336,7 @@ def _settings(calibration_path: PathArg, options: BatchOptions, decode: str, mod
         input_encoding=options.encoding,
         decode=decode,
         read_options=options.read_options,
+        geometry={"sensor_crop": options.sensor_crop, "sensor_mode": options.sensor_mode},
         white=None if options.white is None else str(Path(options.white).absolute()),
         tuning=None if options.tuning is None else str(Path(options.tuning).absolute()),
         compression=options.compression,

@@ -12,22 +12,25 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 
 from ..calibration import Calibration, load_calibration
+from ..calibration.resample import calibration_for_raw
 from ..correct import correct, correct_processed
 from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..export.isp import processed_inputs
 from ..export.tuning import load_tuning
 from ..kernels import fits
+from ..limits import SizeBound
 from ..modes import Mode
 from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
 from ..output.ome_zarr import write_frame
 from ..raw import RawImage, flat_field_gain_map, read_raw, write_dng, write_linear_dng
+from ..raw.model import raw_geometry
 from ..raw.processed import ProcessedImage, read_processed
 from ..records import sha256_file
 from .disk import PLACE_ERRORS
@@ -56,6 +59,7 @@ class Settings:
     zarr_array: str | None  # absolute path of the stack's array, or None for image files
     mosaic: tuple[int, int] | None = None  # (columns, rows): frame i is the tile at row, column = divmod(i, columns)
     stop_event: str | None = None  # on a dask cluster: the name of the distributed.Event that stops the batch
+    geometry: dict[str, Any] = field(default_factory=dict)  # raw_geometry's sensor_crop and sensor_mode, as given
 
 
 @dataclass(frozen=True)
@@ -237,7 +241,7 @@ class _Stages:
         if self.settings.processed:
             return read_processed(Path(job.source), self.settings.decode)
         cal = self.calibration
-        return read_raw(Path(job.source), **self.settings.read_options, expected_shape=(cal.height, cal.width))
+        return read_raw(Path(job.source), **self.settings.read_options, expected_shape=frame_bound(cal))
 
     def correct(self, image: RawImage | ProcessedImage, slot: Slot) -> tuple[np.ndarray | RawImage, dict[str, Any]]:
         """The corrected image (into the slot's array when the kernel can reuse it), and the metadata its colour
@@ -246,23 +250,33 @@ class _Stages:
         if isinstance(image, ProcessedImage):
             return _correct_processed(image, cal, settings), {}
         if settings.binned:
-            return correct(image, cal, mode=settings.mode, binned=True), image.metadata
+            geometry = raw_geometry(image, **settings.geometry) if any(settings.geometry.values()) else None
+            return correct(image, cal, mode=settings.mode, binned=True, geometry=geometry), image.metadata
         if settings.output_format == "dng-gainmap":  # the frame goes out unchanged, the flat field as opcodes
             return image, image.metadata
         # uint16-tiff codes straight from the kernel: no float32 image at full resolution to encode afterwards
         dtype = np.uint16 if settings.output_format == "uint16-tiff" else np.float32
         out = slot.array if fits(slot.array, image.height, image.width, dtype) else None  # an earlier batch's size
-        slot.array = correct(image, cal, mode=settings.mode, out=out, dtype=dtype)
+        geometry = raw_geometry(image, **settings.geometry) if any(settings.geometry.values()) else None
+        slot.array = correct(image, cal, mode=settings.mode, out=out, dtype=dtype, geometry=geometry)
         return slot.array, image.metadata
 
     def write(self, job: Job, corrected: tuple[np.ndarray | RawImage, dict[str, Any]]) -> None:
         image, source_metadata = corrected
-        if isinstance(image, RawImage):  # dng-gainmap
-            _write_gain_map_dng(self.settings, job, image, self.calibration)
+        if isinstance(image, RawImage):  # dng-gainmap: the flat field at the frame's own mode
+            geometry = raw_geometry(image, **self.settings.geometry) if any(self.settings.geometry.values()) else None
+            _write_gain_map_dng(self.settings, job, image, calibration_for_raw(self.calibration, image, geometry))
         elif self.settings.output_format == "linear-dng":
             _write_linear_dng(self.settings, job, image, source_metadata, self.calibration)
         else:
             _write(self.settings, job, image, source_metadata)
+
+
+def frame_bound(cal: Calibration) -> SizeBound:
+    """The largest raw frame the calibration can correct: its sensor area, unbinned (a frame of any mode inside it
+    is at most that; a forged header declaring more is refused before anything is decoded)."""
+    assert cal.geometry is not None
+    return SizeBound((max(cal.height, cal.geometry.crop[3]), max(cal.width, cal.geometry.crop[2])))
 
 
 def _correct_processed(image: ProcessedImage, cal: Calibration, settings: Settings) -> np.ndarray:

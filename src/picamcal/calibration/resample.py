@@ -67,17 +67,17 @@ def _resampled(cal: Calibration, target: SensorMode, pattern: str) -> Calibratio
     wy = _weights(target.height, cal.height, cal.bin_size, ay, by)
     wx = _weights(target.width, cal.width, cal.bin_size, ax, bx)
 
-    def field(array: np.ndarray | None) -> np.ndarray | None:
-        if array is None:
-            return None
+    def field(array: np.ndarray) -> np.ndarray:
         out = np.einsum("ty,yx...->tx...", wy, array.astype(np.float64))
         out = np.einsum("sx,tx...->ts...", wx, out)
         return out.astype(array.dtype) if array.dtype != bool else out > 0
 
+    def optional(array: np.ndarray | None) -> np.ndarray | None:
+        return None if array is None else field(array)
+
     order = site_order(cal.pattern, pattern)
     site_white = field(cal.site_white)
     responses = field(cal.site_responses.transpose(1, 2, 0, 3))
-    assert site_white is not None and responses is not None
     provenance = dict(cal.provenance)
     provenance["resampled_from"] = geometry.to_record()
     return dataclasses.replace(
@@ -92,11 +92,11 @@ def _resampled(cal: Calibration, target: SensorMode, pattern: str) -> Calibratio
         site_white=np.ascontiguousarray(site_white[..., order]),
         white=field(cal.white),
         lens_shading=field(cal.lens_shading),
-        crosstalk=field(cal.crosstalk),
-        unmixing=field(cal.unmixing),
-        pure_unmixing=field(cal.pure_unmixing),
-        condition_number=field(cal.condition_number),
-        ill_conditioned=field(cal.ill_conditioned),
+        crosstalk=optional(cal.crosstalk),
+        unmixing=optional(cal.unmixing),
+        pure_unmixing=optional(cal.pure_unmixing),
+        condition_number=optional(cal.condition_number),
+        ill_conditioned=optional(cal.ill_conditioned),
     )
 
 

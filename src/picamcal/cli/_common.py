@@ -192,6 +192,46 @@ RawSensorOption = Annotated[
 ]
 
 
+def _parse_sensor_crop(value: str | None) -> tuple[int, int, int, int] | None:
+    from ..geometry import parse_sensor_crop
+
+    try:
+        return parse_sensor_crop(value)
+    except PicamcalError as exc:
+        raise typer.BadParameter(exc.problem, param_hint="--sensor-crop") from None
+
+
+def _parse_sensor_mode(value: str | None) -> str | None:
+    from ..geometry import parse_sensor_mode
+
+    try:
+        parse_sensor_mode(value)
+    except PicamcalError as exc:
+        raise typer.BadParameter(exc.problem, param_hint="--sensor-mode") from None
+    return value
+
+
+SensorCropOption = Annotated[
+    str | None,
+    typer.Option(
+        "--sensor-crop",
+        help="X,Y,WIDTH,HEIGHT: the sensor area the raw frames were read from, in full-sensor pixels, for files "
+        "that do not say it (a mode picamcal's registry does not know). Default: what the file says, else the "
+        "sensor's mode of the frame's size, else the whole sensor.",
+        callback=_parse_sensor_crop,
+    ),
+]
+SensorModeOption = Annotated[
+    str | None,
+    typer.Option(
+        "--sensor-mode",
+        help="WIDTHxHEIGHT[:BITS]: the sensor's mode the raw frames come from (picamcal inspect lists a sensor's "
+        "modes); for files that do not say it.",
+        callback=_parse_sensor_mode,
+    ),
+]
+
+
 def choice(value: str, choices: Sequence[str], option: str) -> str:
     """``value`` as one of ``choices``, compared case-insensitively; a near miss, of a whole choice or of one of its
     parts (``png`` of ``srgb-png``), gets "did you mean"."""

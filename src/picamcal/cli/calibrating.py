@@ -19,6 +19,8 @@ from ._common import (
     RawFormatOption,
     RawSensorOption,
     RawSizeOption,
+    SensorCropOption,
+    SensorModeOption,
     StrideOption,
     app,
     check_output,
@@ -89,6 +91,8 @@ def calibrate_cmd(
     stride: StrideOption = None,
     frame: FrameOption = None,
     sensor: RawSensorOption = None,
+    sensor_crop: SensorCropOption = None,
+    sensor_mode: SensorModeOption = None,
     light: Annotated[
         str | None,
         typer.Option(
@@ -148,6 +152,8 @@ def calibrate_cmd(
                 max_noise_penalty=max_noise_penalty,
                 bin_size=bin_size,
                 smoothing=smoothing,
+                sensor_crop=sensor_crop,  # type: ignore[arg-type]  # the option's callback parsed it
+                sensor_mode=sensor_mode,
             )
         if light is not None:  # else what calibrate gave: unknown, or in situ the jig calibration's
             cal = dataclasses.replace(cal, light=light)
@@ -161,7 +167,8 @@ def calibrate_cmd(
     )
     lines = [
         f"wrote {out}: {cal.sensor or 'unknown sensor'} {cal.width}x{cal.height} {cal.pattern}, "
-        f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, {what}"
+        f"{cal.white.shape[1]}x{cal.white.shape[0]} bins of {cal.bin_size} px, {what}; sensor mode "
+        f"{cal.geometry.describe() if cal.geometry else 'unknown'}"
         + (f", unmixing from {unmixing_from.name}" if unmixing_from else "")
         + (f", light {cal.light} ({LIGHTS[cal.light]})" if cal.light else "")
     ]
@@ -243,6 +250,8 @@ def correct_cmd(
     stride: StrideOption = None,
     frame: FrameOption = None,
     sensor: RawSensorOption = None,
+    sensor_crop: SensorCropOption = None,
+    sensor_mode: SensorModeOption = None,
     workers: Annotated[
         int | None,
         typer.Option(
@@ -294,6 +303,8 @@ def correct_cmd(
             **_batch_read_options(pattern, black_level, raw_format, size, stride, frame, sensor),
             white=white_image,
             tuning=tuning_file,
+            sensor_crop=sensor_crop,  # type: ignore[arg-type]  # the option's callback parsed it
+            sensor_mode=sensor_mode,
         )
     except BatchOptionError as exc:  # options that do not go together, under their command-line names
         hint = _BATCH_OPTION_NAMES.get(exc.option) if exc.option else None

@@ -362,10 +362,9 @@ def raw_geometry(
         except PicamcalError as exc:
             raise RawFormatError(exc.problem, raw.source) from None
         return replace(mode, hflip=bool(hflip), vflip=bool(vflip), bit_depth=raw.bit_depth, source=source)
-    if not recorded:
-        mode = registry_mode(raw.sensor, *size, raw.bit_depth)
-        if mode is not None:
-            return mode
+    registered = None if recorded else registry_mode(raw.sensor, *size, raw.bit_depth)
+    if registered is not None:
+        return registered
     binning = full_field_binning(sensor_size, size) if sensor_size else None
     if sensor_size is None or binning is None:  # a frame no known mode gives: a sensor of its own size
         return SensorMode.full(*size, bit_depth=raw.bit_depth)
