@@ -1,9 +1,11 @@
 """Cameras behind one small interface: the Raspberry Pi camera through picamera2, and the simulator.
 
 :class:`Camera` is what the acquisition (:mod:`picamcal.acquire.acquisition`) needs of a camera: a raw stream
-at full sensor size, explicit exposure time, analogue gain and colour gains (so nothing adapts), and unpacked
-raw frames with their metadata. :class:`Picamera2Camera` is a thin adapter over picamera2 (an optional extra
-for the Pi, imported only when used); :class:`SimCamera` serves frames from :mod:`picamcal.simulate`, lit by a
+in one sensor mode (the full-resolution one by default), explicit exposure time, analogue gain and colour gains (so
+nothing adapts), and unpacked raw frames with their metadata. :class:`Picamera2Camera` is a thin adapter over
+picamera2 (an optional extra for the Pi, imported only when used), which also gives the processed stream of any
+sensor mode (what ``picamcal verify`` measures, :mod:`picamcal.acquire.verify`); :class:`SimCamera` serves frames
+from :mod:`picamcal.simulate`, lit by a
 :class:`~picamcal.acquire.illuminators.SimIlluminator`, so the same acquisition code runs and is tested
 everywhere.
 """
@@ -16,13 +18,17 @@ import math
 import os
 import subprocess
 import sys
+import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
-from ..errors import PicamcalError
+from ..errors import PicamcalError, PicamcalWarning
 from ..export.tuning import TARGET_NAMES, TuningError, load_tuning, neutral_tuning, stock_tuning_path
+from ..geometry import SensorMode, parse_sensor_mode
 from ..raw.model import RawImage
 from ..raw.picamera2 import capture_raw
 from ..references import ROLES

@@ -8,6 +8,7 @@ that the *interpolated* gains fit the measured field best, over every bin of the
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 import json
 import math
@@ -24,16 +25,18 @@ from .._json import read_libcamera_yaml
 from .._version import __version__
 from ..bayer import bin_edges
 from ..calibration import Calibration
+from ..calibration.resample import CROP_TOLERANCE, resample_calibration
 from ..errors import CalibrationFileError, PicamcalWarning
-from ..sensors import LSC_GRIDS, find_sensor_name
+from ..sensors import LSC_GRIDS, SENSORS, find_sensor_name, sensor_modes
 from .isp import (
     GAIN_LIMITS,
     RECORD_KEY,
     SensorMode,
     TuningError,
-    channel_tables,
     check_hardware_range,
     check_tuning,
+    lens_shading_gains,
+    mode_resampling,
     table_to_pixels,
 )
 
@@ -422,13 +425,54 @@ def _regularised_pinv(a: np.ndarray) -> np.ndarray:
     return np.linalg.solve(normal + SMOOTHNESS * np.trace(normal) / n * (d.T @ d), a.T)
 
 
-def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
-    """Least-squares R, G, B gain tables (3, rows, cols) whose ISP-interpolated gains flatten the white.
+class GainFit(NamedTuple):
+    """The fitted R, G, B gain tables over the full sensor, and which cells the calibration's crop measured."""
 
-    The per-pixel gains are ``Py @ T @ Px.T`` (:func:`picamcal.export.isp.table_to_pixels`), averaged over
-    each bin; the target in each bin is the reciprocal of the white, ``1 / W_c(b)`` (paper: ``Cb LST =
-    1 / W``). The fit is separable, ``T = Fy+ G Fx+.T`` with ``F = bin average @ P`` and ``F+`` a
-    least-squares inverse with a small smoothness penalty (:data:`SMOOTHNESS`).
+    tables: np.ndarray  # (3, rows, cols)
+    measured: np.ndarray  # (rows, cols) bool: cells whose gains reach the calibration's bins
+
+
+def _fit(calibration: Calibration, target: str) -> GainFit:
+    """:func:`fit_gain_tables` with the cells the calibration measured; the others are extended smoothly."""
+    geometry = calibration.geometry
+    assert geometry is not None
+    cols, rows = LSC_GRIDS[target]
+    ry, rx = mode_resampling((cols, rows), geometry)
+    py, px = table_to_pixels(target, calibration.width, calibration.height)
+    fy = _bin_average(calibration.height, calibration.bin_size) @ py @ ry
+    fx = _bin_average(calibration.width, calibration.bin_size) @ px @ rx
+    gains = 1.0 / calibration.white.astype(np.float64)
+    gains /= gains.min(axis=(0, 1))
+    inv_y, inv_x = _regularised_pinv(fy), _regularised_pinv(fx)
+    tables = np.stack([inv_y @ gains[..., c] @ inv_x.T for c in range(3)])
+    # A cell is measured when the ISP's interpolation carries it into the calibration's bins with some weight.
+    seen_y, seen_x = fy.sum(axis=0) > MEASURED_WEIGHT, fx.sum(axis=0) > MEASURED_WEIGHT
+    measured = np.outer(seen_y, seen_x)
+    if not measured.all():  # outside the crop: the smoothness penalty's extension, held within the measured range
+        for table in tables:
+            low, high = table[measured].min(), table[measured].max()
+            table[~measured] = np.clip(table[~measured], low, high)
+    return GainFit(tables, measured)
+
+
+#: A table cell whose interpolation weight summed over the calibration's bins exceeds this (in bins) is measured.
+MEASURED_WEIGHT = 0.05
+
+
+def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
+    """Least-squares R, G, B gain tables (3, rows, cols) over the full sensor whose ISP-interpolated gains flatten
+    the white in the calibration's sensor mode.
+
+    libcamera's tables cover the full sensor; for a mode it resamples them to the mode's crop (``resampleCalTable``,
+    :func:`picamcal.export.isp.mode_resampling`, ``R``), then the IPA and the ISP interpolate them to the pixels
+    (:func:`picamcal.export.isp.table_to_pixels`, ``P``). The per-pixel gains in the calibration's mode are
+    ``Py Ry T Rx' Px'``, averaged over each bin; the target in each bin is the reciprocal of the white,
+    ``1 / W_c(b)`` (paper: ``Cb LST = 1 / W``). The fit is separable, ``T = Fy+ G Fx+.T`` with
+    ``F = bin average @ P @ R`` and ``F+`` a least-squares inverse with a small smoothness penalty
+    (:data:`SMOOTHNESS`). A calibration of the whole sensor (binned or not) measures every cell; one from a
+    cropped mode measures the cells over its crop, and the penalty extends the table smoothly beyond it (held within
+    the measured cells' range): every mode inside the crop comes out flat, the others are extrapolated
+    (:func:`mode_coverage`).
 
     Examples
     --------
@@ -440,13 +484,49 @@ def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
     >>> bool(green[0, 0] > 1.5 * green[16, 16])  # the corners, darker, get more gain
     True
     """
-    py, px = table_to_pixels(target, calibration.width, calibration.height)
-    fy = _bin_average(calibration.height, calibration.bin_size) @ py
-    fx = _bin_average(calibration.width, calibration.bin_size) @ px
-    gains = 1.0 / calibration.white.astype(np.float64)
-    gains /= gains.min(axis=(0, 1))
-    inv_y, inv_x = _regularised_pinv(fy), _regularised_pinv(fx)
-    return np.stack([inv_y @ gains[..., c] @ inv_x.T for c in range(3)])
+    return _fit(calibration, target).tables
+
+
+def mode_coverage(calibration: Calibration) -> dict[str, list[str]]:
+    """Which of the sensor's modes (:func:`picamcal.sensors.sensor_modes`) lie inside the calibration's crop
+    (``"covered"``: an exported table makes them flat) and which reach outside it (``"extrapolated"``), named
+    ``WIDTHxHEIGHT:BITS`` (:func:`sensor_mode_geometries`).
+
+    Examples
+    --------
+    >>> from picamcal.geometry import SensorMode
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> mode_coverage(cal)["extrapolated"]
+    []
+    """
+    geometry = calibration.geometry
+    assert geometry is not None
+    coverage: dict[str, list[str]] = {"covered": [], "extrapolated": []}
+    for name, mode in sensor_mode_geometries(calibration).items():
+        inside = geometry.contains(mode.crop, CROP_TOLERANCE * max(mode.binning, geometry.binning))
+        coverage["covered" if inside else "extrapolated"].append(name)
+    return coverage
+
+
+def sensor_mode_geometries(calibration: Calibration) -> dict[str, SensorMode]:
+    """The sensor's modes by name (``WIDTHxHEIGHT:BITS``) on the calibration's sensor: the registry's when the
+    calibration's sensor size is the registry's, else (a reduced simulated sensor, an unknown one) the whole sensor
+    and the calibration's own mode."""
+    geometry = calibration.geometry
+    assert geometry is not None
+    sensor = SENSORS.get(calibration.sensor or "")
+    if sensor is not None and sensor.size == geometry.sensor_size:
+        modes = {
+            f"{m.width}x{m.height}:{m.bit_depth}": SensorMode(
+                *sensor.size, m.crop, max(1, round(m.crop[2] / m.width)), bit_depth=m.bit_depth, source="registry"
+            )
+            for m in sensor_modes(sensor.name)
+        }
+        return modes
+    bits = geometry.bit_depth or calibration.bit_depth
+    full = SensorMode.full(*geometry.sensor_size, bit_depth=bits, source="assumed")
+    return {f"{m.width}x{m.height}:{bits}": m for m in (full, geometry)}
 
 
 def _describe_cells(mask: np.ndarray) -> str:
@@ -489,14 +569,15 @@ def alsc_tables(
     >>> round(float(tables["luminance_lut"].max()), 1)  # the darkest corner's gain
     1.9
     """
-    t_r, t_g, t_b = fit_gain_tables(calibration, target)
-    if np.any(np.array([t_r, t_g, t_b]) <= 0):
+    fit = _fit(calibration, target)
+    t_r, t_g, t_b = fit.tables
+    if np.any(fit.tables[:, fit.measured] <= 0):
         raise TuningError(
             "the fitted lens shading table has gains <= 0: the white reference is too uneven", calibration.path
         )
-    lum = t_g / t_g.min()
+    lum = t_g / t_g[fit.measured].min()
     cr, cb = t_r / t_g, t_b / t_g
-    cr, cb = cr / cr.min(), cb / cb.min()
+    cr, cb = cr / cr[fit.measured].min(), cb / cb[fit.measured].min()
     s = luminance_strength
     green = 1 + s * (lum - 1)
     final = {"red": cr * green, "green": green, "blue": cb * green}
@@ -567,10 +648,17 @@ def export_tuning(
     ``Cx``, which maps white-balanced camera RGB to the illuminator's primaries (sRGB only as far as the
     LEDs' primaries are sRGB's).
 
+    The table covers the full sensor, as libcamera's do: the calibration's cells are placed at its sensor mode's
+    crop (:func:`fit_gain_tables`), so its own mode and every mode inside its crop come out flat; a calibration
+    from a cropped mode extends the table smoothly beyond its crop, with a warning naming the modes it
+    extrapolates (:func:`mode_coverage`).
+
     A top-level ``"picamcal"`` entry, which libcamera ignores, records the colour gains that make the
     calibration's white neutral through this very file (:func:`neutral_colour_gains`: the tables of each
-    target are normalised differently, so each file needs its own), the calibration's file name and the
-    version of picamcal.
+    target and of each sensor mode are normalised differently, so each needs its own) in the calibration's mode
+    (``colour_gains``) and in every sensor mode (``colour_gains_by_mode``, keyed ``WIDTHxHEIGHT:BITS``), the
+    calibration's geometry, the modes it covers and those it extrapolates, its file name and the version of
+    picamcal.
 
     Parameters
     ----------
@@ -639,12 +727,28 @@ def export_tuning(
         _set_algorithm(algorithms, "rpi.ccm", section, after="rpi.contrast")
     check_hardware_range(tuning)
     tuning.pop(RECORD_KEY, None)  # last, after the stock file's own keys
+    coverage = mode_coverage(calibration)
+    modes = sensor_mode_geometries(calibration)
+    assert calibration.geometry is not None
     tuning[RECORD_KEY] = {
         "colour_gains": list(neutral_colour_gains(calibration, tuning)),
+        "colour_gains_by_mode": {name: list(neutral_colour_gains(calibration, tuning, modes[name])) for name in modes},
         "colour_gains_use": COLOUR_GAINS_USE,
         "calibration": calibration.path.name if calibration.path else None,
+        "geometry": calibration.geometry.to_record(),
+        "modes_covered": coverage["covered"],
+        "modes_extrapolated": coverage["extrapolated"],
         "software_version": __version__,
     }
+    if coverage["extrapolated"]:
+        x, y, w, h = calibration.geometry.crop
+        warnings.warn(
+            f"the calibration covers the {w}x{h} sensor area at ({x}, {y}) only: the table is measured for modes "
+            f"{', '.join(coverage['covered']) or 'none'} and extrapolated for {', '.join(coverage['extrapolated'])} "
+            "(calibrate in the full-resolution or a binned mode to cover every mode)",
+            PicamcalWarning,
+            stacklevel=2,
+        )
     return tuning
 
 
@@ -655,14 +759,18 @@ COLOUR_GAINS_USE = (
 )
 
 
-def neutral_colour_gains(calibration: Calibration, tuning: dict[str, Any]) -> tuple[float, float]:
-    """The colour gains (red, blue) that make the calibration's white neutral through a tuning file's lens shading.
+def neutral_colour_gains(
+    calibration: Calibration, tuning: dict[str, Any], mode: SensorMode | None = None
+) -> tuple[float, float]:
+    """The colour gains (red, blue) that make the calibration's white neutral through a tuning file's lens shading,
+    in a sensor mode (default the calibration's own).
 
     libcamera's ``ColourGains`` (rpicam-apps ``--awbgains R,B``): the white's mean red, green and blue over the
-    whole frame after the per-pixel gains the ISP applies with this file's static ``rpi.alsc`` tables
-    (:func:`picamcal.export.isp.channel_tables`, interpolated as the IPA and the hardware do, averaged over each of
-    the calibration's bins), then green / red and green / blue. libcamera scales each target's colour tables to 1
-    at their smallest cell, so the vc4 and pisp files of one calibration need different gains.
+    mode's frame after the per-pixel gains the ISP applies with this file's static ``rpi.alsc`` tables in that mode
+    (:func:`picamcal.export.isp.lens_shading_gains`: resampled to the mode, interpolated as the IPA and the hardware
+    do), then green / red and green / blue. libcamera scales each mode's colour tables to 1 at their smallest cell
+    over the mode's crop, so the gains differ between modes, and between the vc4 and pisp files of one
+    calibration. A mode reaching outside the calibration's crop is measured over the part inside it.
 
     Examples
     --------
@@ -671,14 +779,45 @@ def neutral_colour_gains(calibration: Calibration, tuning: dict[str, Any]) -> tu
     >>> neutral_colour_gains(cal, export_tuning(cal, load_tuning(stock_tuning_path("imx219", "bcm2835"))))
     (1.2507, 1.0018)
     """
-    target = check_tuning(tuning)
-    width, height, size = calibration.width, calibration.height, calibration.bin_size
-    tables = channel_tables(tuning, SensorMode.full(width, height))
-    py, px = table_to_pixels(target, width, height)
-    fy, fx = _bin_average(height, size) @ py, _bin_average(width, size) @ px
-    binned = np.stack([fy @ table @ fx.T for table in tables], axis=-1)
-    red, green, blue = (binned * calibration.white).reshape(-1, 3).mean(axis=0)
+    check_tuning(tuning)
+    geometry = calibration.geometry
+    assert geometry is not None
+    mode = mode or geometry
+    gains = lens_shading_gains(tuning, mode.width, mode.height, mode=mode)
+    area = _overlap(mode, geometry)
+    if area is None:
+        raise TuningError(f"the {mode.describe()} mode does not overlap the calibration's crop", calibration.path)
+    x0, y0, x1, y1 = area
+    crop = (*_sensor_xy(mode, x0, y0), (x1 - x0) * mode.binning, (y1 - y0) * mode.binning)
+    inside = resample_calibration(calibration, dataclasses.replace(mode, crop=crop))
+    if mode.hflip:  # the window in the mirrored image
+        x0, x1 = mode.width - x1, mode.width - x0
+    if mode.vflip:
+        y0, y1 = mode.height - y1, mode.height - y0
+    size = inside.bin_size
+    window = gains[y0:y1, x0:x1]
+    fy, fx = _bin_average(y1 - y0, size), _bin_average(x1 - x0, size)
+    binned = np.stack([fy @ window[..., c] @ fx.T for c in range(3)], axis=-1)
+    red, green, blue = (binned * inside.white).reshape(-1, 3).mean(axis=0)
     return round(float(green / red), 4), round(float(green / blue), 4)
+
+
+def _sensor_xy(mode: SensorMode, x: int, y: int) -> tuple[int, int]:
+    """The sensor position of the top left of pixel (x, y) of an unflipped mode."""
+    return mode.crop[0] + x * mode.binning, mode.crop[1] + y * mode.binning
+
+
+def _overlap(mode: SensorMode, geometry: SensorMode) -> tuple[int, int, int, int] | None:
+    """The pixels (x0, y0, x1, y1) of the mode's image, as if unflipped, whose sensor area lies inside the
+    calibration's crop, or None."""
+    gx, gy, gw, gh = geometry.crop
+    mx, my, _, _ = mode.crop
+    b = mode.binning
+    x0, y0 = max(0, -(-(gx - mx) // b)), max(0, -(-(gy - my) // b))
+    x1, y1 = min(mode.width, (gx + gw - mx) // b), min(mode.height, (gy + gh - my) // b)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return x0, y0, x1, y1
 
 
 def _rounded(table: np.ndarray) -> list[float]:
