@@ -132,6 +132,8 @@ def test_render_metadata_and_levels(camera):
     assert raw.metadata == {
         "simulated": True,
         "sensor_size": [64, 48],
+        "sensor_crop": [0, 0, 64, 48],
+        "geometry_source": "file",
         "exposure_time_s": 0.01,
         "analogue_gain": 1.0,
         "tilt_deg": [1.0, 2.0],

@@ -15,7 +15,7 @@ from .calibrate import MAX_CLIPPED_FRACTION
 from .errors import PicamcalError, PicamcalWarning, RawFormatError
 from .manifest import FRAME_FORMAT, MANIFEST_FORMAT
 from .raw import HEADLESS_SUFFIXES, PROCESSED_SUFFIXES, RAW_SUFFIXES, RawImage, read_raw
-from .raw.model import require_black_level
+from .raw.model import raw_geometry, require_black_level
 from .raw.picamera2 import SIDECAR_FORMAT
 from .raw.processed import read_processed
 
@@ -73,6 +73,8 @@ def describe(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> d
     }
     keys = (*_METADATA_KEYS, "declared_pattern", "frames")
     record.update({k: _plain(raw.metadata[k]) for k in keys if k in raw.metadata})
+    geometry = raw_geometry(raw)
+    record.update(sensor_mode=geometry.describe(), geometry=geometry.to_record())
     clipped = int(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
     record.update(clipped_fraction=clipped, notes=[])
     if not all(np.isfinite(raw.black_level)):
@@ -213,7 +215,14 @@ def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dic
     path = Path(path)
     other = what_else(path) if path.is_file() else None
     if other is not None:
-        return {"path": str(path), "format": other, "raw": False, "readable": True}
+        record = {"path": str(path), "format": other, "raw": False, "readable": True}
+        if other.startswith("picamcal calibration"):
+            from .calibration import load_calibration
+
+            geometry = load_calibration(path).geometry
+            assert geometry is not None
+            record.update(sensor_mode=geometry.describe(), geometry=geometry.to_record())
+        return record
     try:
         return {**describe(path, read), "readable": True}
     except PicamcalError as exc:

@@ -61,7 +61,7 @@ class SensorMode:
     >>> mode.width, mode.height, mode.is_full
     (1920, 1080, False)
     >>> print(mode.describe())
-    1920x1080 from the 1920x1080 crop at (680, 692) of the 3280x2464 sensor, 10 bits (registry)
+    1920x1080: the 1920x1080 area at (680, 692) of the 3280x2464 sensor, 10 bits (registry)
     """
 
     sensor_width: int
@@ -126,13 +126,13 @@ class SensorMode:
     def describe(self) -> str:
         """One line: the image size, where it lies on the sensor, and where that came from."""
         x, y, w, h = self.crop
-        where = f"the {w}x{h} crop at ({x}, {y})" if not self.is_full else "the whole"
+        where = f"the {w}x{h} area at ({x}, {y}) of the" if not self.is_full else "the whole"
         binning = f", {self.binning}x{self.binning} binned" if self.binning > 1 else ""
         flips = [name for name, on in (("h", self.hflip), ("v", self.vflip)) if on]
         flipped = f", {'+'.join(flips)}flip" if flips else ""
         bits = f", {self.bit_depth} bits" if self.bit_depth else ""
         return (
-            f"{self.width}x{self.height} from {where} of the {self.sensor_width}x{self.sensor_height} sensor"
+            f"{self.width}x{self.height}: {where} {self.sensor_width}x{self.sensor_height} sensor"
             f"{binning}{flipped}{bits} ({self.source})"
         )
 

@@ -124,14 +124,20 @@ def export_tuning_cmd(
             raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
     for path, tuning, base_path in zip(outputs, exported, bases, strict=True):
         save_tuning(path, tuning, overwrite=overwrite)
-        red, blue = tuning["picamcal"]["colour_gains"]
-        console().print(
+        record = tuning["picamcal"]
+        red, blue = record["colour_gains"]
+        lines = [
             f"wrote {path}: static lens shading for {tuning['target']} from {calibration.name} (base {base_path}); "
-            f"for a neutral white use --awbgains {red:g},{blue:g} / ColourGains ({red:g}, {blue:g})",
-            markup=False,
-            highlight=False,
-            soft_wrap=True,
-        )
+            f"for a neutral white in the calibration's mode ({cal.width}x{cal.height}) use "
+            f"--awbgains {red:g},{blue:g} / ColourGains ({red:g}, {blue:g}); in each sensor mode:",
+            *(
+                f"  {name}: --awbgains {r:g},{b:g}"
+                + (" (extrapolated: outside the calibration's crop)" if name in record["modes_extrapolated"] else "")
+                for name, (r, b) in record["colour_gains_by_mode"].items()
+            ),
+        ]
+        for line in lines:
+            console().print(line, markup=False, highlight=False, soft_wrap=True)
     if chosen.note:
         console().print(chosen.note, markup=False, highlight=False, soft_wrap=True)
 

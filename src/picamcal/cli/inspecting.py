@@ -71,7 +71,19 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
     from rich.text import Text
 
     table = Table()
-    headings = ["file", "format", "sensor", "size", "pattern", "bits", "black", "white", "exposure", "gain"]
+    headings = [
+        "file",
+        "format",
+        "sensor",
+        "size",
+        "sensor mode",
+        "pattern",
+        "bits",
+        "black",
+        "white",
+        "exposure",
+        "gain",
+    ]
     frames = any("frames" in r for r in records)
     for heading in [*headings, "frames"] if frames else headings:
         table.add_column(heading)
@@ -84,6 +96,7 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
             r["format"],
             r.get("sensor") or ("?" if r["raw"] else "-"),
             f"{r['width']}x{r['height']}",
+            _mode(r.get("geometry")),
             r.get("pattern", "-"),
             r["bit_depth"],
             _levels(r.get("black_level")) if r["raw"] else "-",
@@ -102,8 +115,21 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
             stdout.print(f"{name}: cannot read: {r['error']}", markup=False, highlight=False, soft_wrap=True)
         if "note" in r:
             stdout.print(f"{name}: not raw: {r['note']}", markup=False, highlight=False, soft_wrap=True)
+        if "width" not in r and "sensor_mode" in r:  # a calibration: where on the sensor it was taken
+            stdout.print(f"{name}: sensor mode {r['sensor_mode']}", markup=False, highlight=False, soft_wrap=True)
         for warning in [*r.get("notes", []), *r["warnings"]]:
             stdout.print(f"{name}: {warning}", style="yellow", markup=False, highlight=False, soft_wrap=True)
+
+
+def _mode(geometry: dict[str, Any] | None) -> str:
+    """A frame's sensor mode in a few characters: ``full``, ``full /2`` (binned 2 x 2), ``1920x1080@680,692``;
+    ``?`` when nothing said it (the whole sensor assumed)."""
+    if not geometry:
+        return "-"
+    x, y, w, h = geometry["crop"]
+    where = "full" if [x, y, w, h] == [0, 0, *geometry["sensor_size"]] else f"{w}x{h}@{x},{y}"
+    binned = f" /{geometry['binning']}" if geometry["binning"] > 1 else ""
+    return f"{where}{binned}" + (" ?" if geometry["source"] == "assumed" else "")
 
 
 def _levels(levels: list[float] | None) -> str:

@@ -325,7 +325,7 @@ def raw_geometry(
     --------
     >>> raw = RawImage(np.zeros((1080, 1920), np.uint16), "BGGR", (64,) * 4, 1023, 10, "imx219")
     >>> print(raw_geometry(raw).describe())
-    1920x1080 from the 1920x1080 crop at (680, 692) of the 3280x2464 sensor, 10 bits (registry)
+    1920x1080: the 1920x1080 area at (680, 692) of the 3280x2464 sensor, 10 bits (registry)
     >>> raw_geometry(raw, sensor_crop=(0, 0, 3840, 2160))
     Traceback (most recent call last):
     ...

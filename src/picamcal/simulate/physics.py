@@ -673,6 +673,8 @@ def readout(
         "simulated": True,
         # The simulated frame is the whole (possibly reduced) sensor: lens shading maps onto all of it.
         "sensor_size": [camera.width, camera.height],
+        "sensor_crop": [0, 0, camera.width, camera.height],
+        "geometry_source": "file",
         "exposure_time_s": _EXPOSURE_TIME_S,
         "analogue_gain": _ANALOGUE_GAIN,
         "tilt_deg": list(camera.tilt),
