@@ -20,7 +20,9 @@ from picamcal.simulate import make_camera, render, simulate_references
 SIZE = (640, 480)
 
 
-def mode_frame(raw: RawImage, crop: tuple[int, int, int, int], binning: int = 1, flips=(False, False)) -> RawImage:
+def mode_frame(
+    raw: RawImage, crop: tuple[int, int, int, int], binning: int = 1, flips=(False, False), size=SIZE
+) -> RawImage:
     """The frame a sensor mode reading ``crop`` of ``raw``'s sensor (binned, flipped) would give: the same light on
     the same pixels, as a driver's crop and 2 x 2 Bayer binning (each site the mean of the four same-colour sites of
     a 4 x 4 block) make it."""
@@ -40,7 +42,7 @@ def mode_frame(raw: RawImage, crop: tuple[int, int, int, int], binning: int = 1,
         pattern = pattern[2:] + pattern[:2]
     metadata = {
         **raw.metadata,
-        "sensor_size": list(SIZE),
+        "sensor_size": list(size),
         "sensor_crop": list(crop),
         "sensor_flips": [hflip, vflip],
         "geometry_source": "file",

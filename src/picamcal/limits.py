@@ -92,8 +92,9 @@ of 100 MP (set PICAMCAL_MAX_PIXELS to read larger images)
     if isinstance(expected, SizeBound):
         if width > expected[1] or height > expected[0]:
             raise CalibrationFileError(
-                f"{what} does not match the calibration: size {width}x{height}, larger than any sensor mode inside the "
-                f"calibration's {expected[1]}x{expected[0]} sensor area",
+                f"{what} does not match the calibration: size {width}x{height}, larger than the calibration's "
+                f"{expected[1]}x{expected[0]} sensor area, so outside it: calibrate in a mode that covers it (a "
+                "full-sensor or binned mode covers every mode)",
                 path,
             )
     elif expected is not None and (height, width) != (int(expected[0]), int(expected[1])):
