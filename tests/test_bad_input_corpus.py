@@ -453,6 +453,34 @@ case("calibrate --stride 0", headless_with("--size", "96x64", "--stride", "0"), 
 case("calibrate --frame -1", headless_with("--size", "96x64", "--frame", "-1"), "--frame", "-1")
 case("calibrate --size 95x64", headless_with("--size", "95x64"), "--size", "95x64")
 case("calibrate --size 60000x60000", headless_with("--size", "60000x60000"), "white.raw", "60000x60000")
+# calibrate and correct: the sensor mode (issue 30)
+case("calibrate --sensor-crop outside the sensor", calibrate_with("--sensor-crop", "0,0,200,64"), "white.dng",
+     "--sensor-crop 0,0,200,64 lies outside the 96x64 sensor")  # fmt: skip
+case("calibrate --sensor-crop of another size", calibrate_with("--sensor-crop", "0,0,50,64"), "white.dng",
+     "cannot come from a 50x64 sensor area")  # fmt: skip
+case("calibrate --sensor-crop 1,2,3", calibrate_with("--sensor-crop", "1,2,3"), "--sensor-crop", "X,Y,WIDTH,HEIGHT")
+case("calibrate --sensor-mode 9x9", calibrate_with("--sensor-mode", "9x9"), "white.dng", "imx219 has no such mode",
+     "3280x2464:10")  # fmt: skip
+case("calibrate --sensor-mode 1920x1080 of a 96x64 frame", calibrate_with("--sensor-mode", "1920x1080"), "white.dng",
+     "the frame is 96x64, the mode 1920x1080")  # fmt: skip
+case("calibrate --sensor-mode text", calibrate_with("--sensor-mode", "full"), "--sensor-mode", "WIDTHxHEIGHT")
+case("correct --sensor-mode 1332x990", correct_with("--sensor-mode", "1332x990"), "target.dng", "no such mode")
+case("correct --sensor-crop outside the sensor", correct_with("--sensor-crop", "90,0,96,64"), "target.dng",
+     "lies outside the 96x64 sensor")  # fmt: skip
+
+
+def flipped_red(d: Path, b: Path) -> Path:
+    """The red reference as a file that says it was read flipped (another sensor mode than the white's)."""
+    from picamcal import read_raw
+    from picamcal.raw import write_dng
+
+    raw = read_raw(b / "sim" / "red.dng")
+    raw.metadata["sensor_flips"] = [True, True]
+    return write_dng(d / "red.dng", raw)
+
+
+case("calibrate references from different modes", calibrate_full("red", flipped_red), "red.dng",
+     "different sensor modes")  # fmt: skip
 # correct: workers, mosaic, modes, formats, encodings
 case("correct --workers 100000", correct_with("--workers", "100000"), "--workers", "100000")
 case("correct --mosaic without --zarr", correct_with("--mosaic", "2x2"), "--mosaic", "--zarr")
