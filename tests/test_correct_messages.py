@@ -188,9 +188,9 @@ def test_a_single_file_that_cannot_be_corrected_is_one_error_line_and_leaves_no_
     code, err = cli(capfd, "correct", str(data["cal"]), str(data["small"]), "--out", str(out))
     assert code == 2
     assert err == [
-        f"picamcal: error: {data['small']}: image does not match the calibration: size 160x120 of a 160x120 sensor, "
-        "calibration is for 320x240 of a 320x240 one: give the image's sensor area (--sensor-crop X,Y,WIDTH,HEIGHT) "
-        "or calibrate in the image's mode"
+        f"picamcal: error: {data['small']}: image does not match the calibration: size 160x120, calibration is for "
+        "320x240: the image is of a 160x120 sensor, the calibration of a 320x240 one; give the image's sensor area "
+        "(--sensor-crop X,Y,WIDTH,HEIGHT) or calibrate in the image's mode"
     ]
     assert not (tmp_path / "new").exists()  # neither the folder nor its parent, both made by the run
     missing = tmp_path / "missing.dng"
@@ -213,9 +213,9 @@ def test_a_batch_keeps_exit_status_1_with_its_failures_before_its_summary(data, 
     )
     assert code == 1
     assert err[0] == (
-        f"picamcal: failed: {data['small']}: image does not match the calibration: size 160x120 of a 160x120 sensor, "
-        "calibration is for 320x240 of a 320x240 one: give the image's sensor area (--sensor-crop X,Y,WIDTH,HEIGHT) "
-        "or calibrate in the image's mode"
+        f"picamcal: failed: {data['small']}: image does not match the calibration: size 160x120, calibration is for "
+        "320x240: the image is of a 160x120 sensor, the calibration of a 320x240 one; give the image's sensor area "
+        "(--sensor-crop X,Y,WIDTH,HEIGHT) or calibrate in the image's mode"
     )
     assert err[1].startswith(f"wrote 1 image(s) to {out}") and err[1].endswith("failed 1") and len(err) == 2
     nothing = tmp_path / "nothing"

@@ -202,6 +202,12 @@ def test_geometry_maps_between_modes():
     assert (ax * 0 + bx, ax * 1640 + bx) == (3280.0, 0.0)  # its first column is the sensor's last
     assert sensor_area(SensorMode(*sensor, (680, 692, 1920, 1080)), (0, 0, 960, 540)) == (680, 692, 960, 540)
     assert site_order("BGGR", "BGGR") == [0, 1, 2, 3] and site_order("GBRG", "RGGB") == [2, 3, 0, 1]
+    # The OV5647's 1920 x 1080 mode reads 1928 columns (ov5647.c): the image keeps its size, the scale follows.
+    ov5647 = registry_mode("ov5647", 1920, 1080)
+    assert ov5647 is not None and (ov5647.width, ov5647.height, ov5647.crop[2]) == (1920, 1080, 1928)
+    (ax, bx), _ = image_to_image(ov5647, SensorMode.full(2592, 1944))
+    assert (round(ax, 5), bx) == (round(1928 / 1920, 5), 348.0)
+    assert SensorMode.from_record(ov5647.to_record()) == ov5647
 
 
 def test_a_resampled_calibration_is_cached_and_keeps_the_global_values(cal):

@@ -227,7 +227,10 @@ def test_record_types_and_agreement_with_the_fields_are_checked(sim_run, tmp_pat
         ({"width": "320"}, "record 'width' must be a positive whole number, not the string '320'"),
         ({"width": 336}, "a 320x240 crop binned 1x1 is not the calibration's 336x240"),
         (
-            {"width": 336, "geometry": {**record["geometry"], "crop": [0, 0, 336, 240], "sensor_size": [336, 240]}},
+            {
+                "width": 336,
+                "geometry": {**record["geometry"], "crop": [0, 0, 336, 240], "sensor_size": [336, 240], "size": None},
+            },
             "'site_responses' has shape (4, 15, 20, 4), expected (4, 15, 21, 4)",
         ),
         ({"geometry": {**record["geometry"], "crop": [0, 0, 640, 240]}}, "is not an area of the 320x240 sensor"),

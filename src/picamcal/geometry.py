@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from .errors import PicamcalError
@@ -34,6 +34,22 @@ GEOMETRY_SOURCES: dict[str, str] = {
 }
 
 Box = tuple[int, int, int, int]
+
+__all__ = [
+    "GEOMETRY_SOURCES",
+    "SensorMode",
+    "assumed_geometry",
+    "full_field_binning",
+    "image_to_image",
+    "mode_for_image",
+    "mode_from_crop",
+    "mode_names",
+    "named_mode",
+    "parse_sensor_crop",
+    "parse_sensor_mode",
+    "registry_mode",
+    "sensor_area",
+]
 
 
 @dataclass(frozen=True)
@@ -54,6 +70,9 @@ class SensorMode:
         Bits per pixel of the mode, when known.
     source : str
         Where this value came from, one of :data:`GEOMETRY_SOURCES`.
+    output : (width, height) or None
+        The mode's image size where it is not the crop divided by the binning (the OV5647's 1920 x 1080 mode reads
+        a 1928 pixel wide area); None: ``crop / binning``.
 
     Examples
     --------
@@ -72,6 +91,7 @@ class SensorMode:
     vflip: bool = False
     bit_depth: int | None = None
     source: str = "assumed"
+    output: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         x, y, w, h = self.crop
@@ -83,23 +103,32 @@ class SensorMode:
             )
         if self.source not in GEOMETRY_SOURCES:
             raise PicamcalError(f"unknown geometry source {self.source!r}")
+        if self.output is not None and tuple(self.output) == (w // self.binning, h // self.binning):
+            object.__setattr__(self, "output", None)  # one value for one mode: the size it implies is not repeated
 
     @classmethod
     def full(
-        cls, width: int, height: int, *, binning: int = 1, bit_depth: int | None = None, source: str = "assumed"
+        cls,
+        width: int,
+        height: int,
+        *,
+        binning: int = 1,
+        bit_depth: int | None = None,
+        source: str = "assumed",
+        output: tuple[int, int] | None = None,
     ) -> SensorMode:
-        """The whole of a ``width`` x ``height`` sensor, read out at ``binning``."""
-        return cls(width, height, (0, 0, width, height), binning, bit_depth=bit_depth, source=source)
+        """The whole of a ``width`` x ``height`` sensor, read out at ``binning`` (to ``output`` pixels)."""
+        return cls(width, height, (0, 0, width, height), binning, bit_depth=bit_depth, source=source, output=output)
 
     @property
     def width(self) -> int:
         """Image width of the mode."""
-        return self.crop[2] // self.binning
+        return self.output[0] if self.output else self.crop[2] // self.binning
 
     @property
     def height(self) -> int:
         """Image height of the mode."""
-        return self.crop[3] // self.binning
+        return self.output[1] if self.output else self.crop[3] // self.binning
 
     @property
     def sensor_size(self) -> tuple[int, int]:
@@ -111,9 +140,9 @@ class SensorMode:
         """The mode reads the whole sensor (binned or not)."""
         return self.crop == (0, 0, self.sensor_width, self.sensor_height)
 
-    def area(self) -> tuple[int, int, Box, int, bool, bool]:
+    def area(self) -> tuple[int, int, Box, int, bool, bool, int, int]:
         """What places the image on the sensor (everything but the bit depth and the source), for comparisons."""
-        return self.sensor_width, self.sensor_height, self.crop, self.binning, self.hflip, self.vflip
+        return (*self.sensor_size, self.crop, self.binning, self.hflip, self.vflip, self.width, self.height)
 
     def contains(self, box: Box, tolerance: int = 0) -> bool:
         """Whether the sensor area ``box`` (x, y, width, height, full-sensor pixels) lies inside this mode's crop,
@@ -152,6 +181,7 @@ class SensorMode:
             "vflip": self.vflip,
             "bit_depth": self.bit_depth,
             "source": self.source,
+            "size": [self.width, self.height],
         }
 
     @classmethod
@@ -159,7 +189,7 @@ class SensorMode:
         """The value of a record :meth:`to_record` wrote (its types checked by the calibration's schema)."""
         width, height = (int(v) for v in record["sensor_size"])
         x, y, w, h = (int(v) for v in record["crop"])
-        bits = record.get("bit_depth")
+        bits, size = record.get("bit_depth"), record.get("size")
         return cls(
             width,
             height,
@@ -169,12 +199,14 @@ class SensorMode:
             bool(record.get("vflip", False)),
             None if bits is None else int(bits),
             str(record.get("source", "file")),
+            None if size is None else (int(size[0]), int(size[1])),
         )
 
 
 def _driver_geometry(sensor_size: tuple[int, int], mode: DriverMode, source: str) -> SensorMode:
     binning = max(1, round(mode.crop[2] / mode.width))
-    return SensorMode(*sensor_size, mode.crop, binning, bit_depth=mode.bit_depth, source=source)
+    output = (mode.width, mode.height)
+    return SensorMode(*sensor_size, mode.crop, binning, bit_depth=mode.bit_depth, source=source, output=output)
 
 
 def registry_mode(
@@ -199,7 +231,13 @@ def registry_mode(
 
 
 def mode_names(sensor: str) -> str:
-    """The sizes of a registry sensor's modes, for messages (``"640x480, 1640x1232, 1920x1080, 3280x2464"``)."""
+    """The sizes of a registry sensor's modes, for messages.
+
+    Examples
+    --------
+    >>> mode_names("imx219")
+    '640x480, 1640x1232, 1920x1080, 3280x2464'
+    """
     sizes = sorted({(m.width, m.height) for m in sensor_modes(sensor)})
     return ", ".join(f"{w}x{h}" for w, h in sizes)
 
@@ -225,12 +263,13 @@ def mode_from_crop(
     if min(x, y) < 0 or min(cw, ch) < 1 or x + cw > sw or y + ch > sh:
         raise PicamcalError(f"{what} {x},{y},{cw},{ch} lies outside the {sw}x{sh} sensor")
     binning = max(1, round(cw / w))
-    if abs(cw / binning - w) > 1 or abs(ch / binning - h) > 1:
+    # A driver may read a little more than it sends (the OV5647's 1920 x 1080 mode reads 1928 columns).
+    if abs(cw / binning - w) > max(1, w / 100) or abs(ch / binning - h) > max(1, h / 100):
         raise PicamcalError(
             f"{what} {x},{y},{cw},{ch}: a {w}x{h} image cannot come from a {cw}x{ch} sensor area (not a whole "
             "binning of it)"
         )
-    return SensorMode(sw, sh, (x, y, cw, ch), binning, source="given")
+    return SensorMode(sw, sh, (x, y, cw, ch), binning, source="given", output=(w, h))
 
 
 def mode_for_image(sensor_size: tuple[int, int], image_size: tuple[int, int], crop: Box | None = None) -> SensorMode:
@@ -255,11 +294,17 @@ def mode_for_image(sensor_size: tuple[int, int], image_size: tuple[int, int], cr
             f"a {w}x{h} image is not the full {sw}x{sh} sensor or a binned copy of it: give the sensor crop of its "
             "mode (--sensor-crop X,Y,WIDTH,HEIGHT in full-sensor pixels)"
         )
-    return SensorMode.full(*sensor_size, binning=binning)
+    return SensorMode.full(*sensor_size, binning=binning, output=image_size)
 
 
 def full_field_binning(sensor_size: tuple[int, int], image_size: tuple[int, int]) -> int | None:
-    """The binning (1 to 4) that makes the whole sensor an image of ``image_size``, or None."""
+    """The binning (1 to 4) that makes the whole sensor an image of ``image_size``, or None.
+
+    Examples
+    --------
+    >>> full_field_binning((2592, 1944), (1296, 972)), full_field_binning((2592, 1944), (1920, 1080))
+    (2, None)
+    """
     (sw, sh), (w, h) = sensor_size, image_size
     for binning in (1, 2, 3, 4):
         if (sw // binning, sh // binning) == (w, h) or (-(-sw // binning), -(-sh // binning)) == (w, h):
@@ -282,7 +327,7 @@ def assumed_geometry(
     binning = full_field_binning(entry.size, (width, height)) if entry else None
     if entry is None or binning is None:
         return SensorMode.full(width, height, bit_depth=bit_depth, source=source)
-    return SensorMode.full(*entry.size, binning=binning, bit_depth=bit_depth, source=source)
+    return SensorMode.full(*entry.size, binning=binning, bit_depth=bit_depth, source=source, output=(width, height))
 
 
 def image_to_image(
@@ -416,8 +461,3 @@ def named_mode(sensor: str | None, text: str, what: str = "--sensor-mode") -> Se
         modes = ", ".join(f"{m.width}x{m.height}:{m.bit_depth}" for m in sensor_modes(entry.name))
         raise PicamcalError(f"{what} {text}: the {entry.name} has no such mode (it has {modes})")
     return _driver_geometry((entry.width, entry.height), matches[0], "given")
-
-
-def with_source(mode: SensorMode, source: str) -> SensorMode:
-    """The same mode, said to come from ``source``."""
-    return replace(mode, source=source)

@@ -150,4 +150,11 @@ def _kind(mode: int) -> str:
     return next((name for test, name in kinds.items() if test(mode)), "not a file")
 
 
-__all__ = ["DEFAULT_MAX_PIXELS", "MAX_PIXELS_VARIABLE", "check_size", "max_pixels", "require_regular_file"]
+__all__ = [
+    "DEFAULT_MAX_PIXELS",
+    "MAX_PIXELS_VARIABLE",
+    "SizeBound",
+    "check_size",
+    "max_pixels",
+    "require_regular_file",
+]

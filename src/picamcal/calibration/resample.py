@@ -21,6 +21,8 @@ from ..geometry import SensorMode, image_to_image
 from ..raw.model import RawImage, raw_geometry
 from . import Calibration
 
+__all__ = ["CROP_TOLERANCE", "calibration_for_raw", "resample_calibration", "site_order"]
+
 #: Pixels a frame's sensor area may reach past the calibration's crop (the rounding of binned and odd-sized modes).
 CROP_TOLERANCE = 2
 
@@ -133,10 +135,10 @@ def resample_calibration(calibration: Calibration, target: SensorMode, pattern: 
     if target.sensor_size != geometry.sensor_size:
         known = "" if geometry.source not in ("assumed", "unknown") else f" ({geometry.source}: it records no mode)"
         raise CalibrationFileError(
-            f"size {target.width}x{target.height} of a {target.sensor_width}x{target.sensor_height} sensor, "
-            f"calibration is for {calibration.width}x{calibration.height} of a {geometry.sensor_width}x"
-            f"{geometry.sensor_height} one{known}: give the image's sensor area (--sensor-crop X,Y,WIDTH,HEIGHT) or "
-            "calibrate in the image's mode",
+            f"size {target.width}x{target.height}, calibration is for {calibration.width}x{calibration.height}: the "
+            f"image is of a {target.sensor_width}x{target.sensor_height} sensor, the calibration of a "
+            f"{geometry.sensor_width}x{geometry.sensor_height} one{known}; give the image's sensor area "
+            "(--sensor-crop X,Y,WIDTH,HEIGHT) or calibrate in the image's mode",
             calibration.path,
         )
     tolerance = CROP_TOLERANCE * max(target.binning, geometry.binning)

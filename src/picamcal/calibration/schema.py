@@ -159,7 +159,12 @@ def _check_geometry(fields: Fields, geometry: Any, width: int, height: int) -> N
         fields.number(geometry["bit_depth"], f"{what}.bit_depth", integer=True, minimum=1, maximum=32)
     if min(cw, ch) < 1 or x + cw > sw or y + ch > sh:
         fields.fail(f"{what}.crop", f"{[x, y, cw, ch]} is not an area of the {sw}x{sh} sensor")
-    if abs(cw / binning - width) > 1 or abs(ch / binning - height) > 1:
+    size = geometry.get("size")
+    if size is not None:
+        fields.numbers(size, f"{what}.size", 2, integer=True, positive=True)
+    if (size is not None and list(size) != [width, height]) or (
+        abs(cw / binning - width) > max(1, width / 100) or abs(ch / binning - height) > max(1, height / 100)
+    ):
         fields.fail(what, f"a {cw}x{ch} crop binned {binning}x{binning} is not the calibration's {width}x{height}")
 
 

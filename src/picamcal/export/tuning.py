@@ -512,7 +512,15 @@ def mode_coverage(calibration: Calibration) -> dict[str, list[str]]:
 def sensor_mode_geometries(calibration: Calibration) -> dict[str, SensorMode]:
     """The sensor's modes by name (``WIDTHxHEIGHT:BITS``) on the calibration's sensor: the registry's when the
     calibration's sensor size is the registry's, else (a reduced simulated sensor, an unknown one) the whole sensor
-    and the calibration's own mode."""
+    and the calibration's own mode.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(simulate_references(make_camera("imx219", size=(320, 240)), seed=1)["white"])
+    >>> list(sensor_mode_geometries(cal))  # a reduced sensor: its whole area, its calibration's mode
+    ['320x240:10']
+    """
     geometry = calibration.geometry
     assert geometry is not None
     sensor = SENSORS.get(calibration.sensor or "")

@@ -368,4 +368,4 @@ def raw_geometry(
     binning = full_field_binning(sensor_size, size) if sensor_size else None
     if sensor_size is None or binning is None:  # a frame no known mode gives: a sensor of its own size
         return SensorMode.full(*size, bit_depth=raw.bit_depth)
-    return SensorMode.full(*sensor_size, binning=binning, bit_depth=raw.bit_depth)
+    return SensorMode.full(*sensor_size, binning=binning, bit_depth=raw.bit_depth, output=size)
