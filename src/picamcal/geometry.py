@@ -225,8 +225,7 @@ def registry_mode(
     if entry is None:
         return None
     matches = [m for m in sensor_modes(entry.name) if (m.width, m.height) == (width, height)]
-    if bit_depth is not None:
-        matches = sorted(matches, key=lambda m: m.bit_depth != bit_depth)
+    matches.sort(key=lambda m: (m.bit_depth != bit_depth, -m.bit_depth))  # that bit depth, else the deepest
     return _driver_geometry((entry.width, entry.height), matches[0], source) if matches else None
 
 
@@ -455,8 +454,7 @@ def named_mode(sensor: str | None, text: str, what: str = "--sensor-mode") -> Se
             "its modes are not either: give --sensor-crop X,Y,WIDTH,HEIGHT instead"
         )
     matches = [m for m in sensor_modes(entry.name) if (m.width, m.height) == (width, height)]
-    if bits is not None:
-        matches = [m for m in matches if m.bit_depth == bits]
+    matches = sorted((m for m in matches if bits in (None, m.bit_depth)), key=lambda m: -m.bit_depth)
     if not matches:
         modes = ", ".join(f"{m.width}x{m.height}:{m.bit_depth}" for m in sensor_modes(entry.name))
         raise PicamcalError(f"{what} {text}: the {entry.name} has no such mode (it has {modes})")
