@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from picamcal.errors import OutputError, PicamcalWarning, RawFormatError
-from picamcal.raw.model import PATTERNS, RawImage, require_black_level
+from picamcal.raw.model import PATTERNS, RawImage, raw_geometry, require_black_level
 from picamcal.raw.packing import pack, packed_row_bytes
 from picamcal.raw.picamera2 import capture_raw, from_picamera2, is_npy, read_picamera2_npy, write_picamera2_npy
 
@@ -739,6 +739,8 @@ class _FakePicamera2:
 
     def __init__(self, array, raw_config, metadata):
         self.camera_properties = {"Model": "imx477", "PixelArraySize": (4056, 3040)}
+        # (minimum, maximum, default): the maximum is the configured mode's crop, picamera2's crop_limits
+        self.camera_controls = {"ScalerCrop": ((0, 0, 64, 16), (1000, 1000, 128, 16), (1000, 1000, 128, 16))}
         self.request = _FakeRequest(array, metadata)
         self.raw_config = raw_config
 
@@ -762,6 +764,10 @@ def test_capture_raw_reads_the_request_and_releases_it():
     np.testing.assert_array_equal(raw.bayer, mosaic)
     assert (raw.sensor, raw.bit_depth, raw.black_level) == ("imx477", 12, (256.0,) * 4)
     assert raw.metadata["exposure_time_s"] == pytest.approx(0.005, rel=1e-12)
+    # Where the mode lies on the sensor, as the camera says: its crop limits on the pixel array, binned 2 x 2 here.
+    assert (raw.metadata["sensor_size"], raw.metadata["sensor_crop"]) == ([4056, 3040], [1000, 1000, 128, 16])
+    geometry = raw_geometry(raw)
+    assert (geometry.binning, geometry.source) == (2, "camera")
     broken = _FakePicamera2(np.zeros((8, 8), np.uint8), _config("SRGGB12_CSI2P", 64, 8, 8), {})
     with pytest.raises(RawFormatError, match="stride of 8 bytes is too short"):
         capture_raw(broken)

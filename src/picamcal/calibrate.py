@@ -29,7 +29,12 @@ import numpy as np
 from ._version import __version__
 from .bayer import bin_sites, centre_region, sites_to_channels
 from .calibration import Calibration
-from .calibration.fitting import least_squares_unmixing, noise_limited_unmixing
+from .calibration.fitting import (
+    crosstalk_matrices,
+    invert_3x3,
+    least_squares_unmixing,
+    noise_limited_unmixing,
+)
 from .errors import CalibrationFileError, CalibrationInputError, PicamcalWarning
 from .geometry import SensorMode
 from .raw import RawImage, read_raw
@@ -51,91 +56,6 @@ MAX_SMOOTHING_FRACTION = 0.25
 RawLike = RawImage | str | os.PathLike
 #: A reference role: one frame, or several frames of the same scene (a sequence or any iterable) to average.
 Frames = RawLike | Iterable[RawLike]
-
-
-# Index pairs (p, q, r, s) of the flattened 3x3 matrix whose products a_p a_q - a_r a_s give each element
-# of the adjugate, row-major.
-_ADJUGATE = (
-    (4, 8, 5, 7),
-    (2, 7, 1, 8),
-    (1, 5, 2, 4),
-    (5, 6, 3, 8),
-    (0, 8, 2, 6),
-    (2, 3, 0, 5),
-    (3, 7, 4, 6),
-    (1, 6, 0, 7),
-    (0, 4, 1, 3),
-)
-
-
-def invert_3x3(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Invert a stack of 3x3 matrices in one vectorised step (adjugate over determinant).
-
-    The paper inverted each bin's matrix with ``numpy.linalg.inv`` in a Python loop; this works on
-    nine contiguous planes of all the bins at once (``benchmarks/run.py`` measures the difference).
-
-    Parameters
-    ----------
-    m : ndarray, shape (..., 3, 3)
-        Computed in its own precision if float32, else in float64.
-
-    Returns
-    -------
-    inverse : ndarray, shape (..., 3, 3)
-        Non-finite where the determinant is zero.
-    det : ndarray, shape (...)
-
-    Examples
-    --------
-    >>> inv, det = invert_3x3(np.diag([2.0, 4.0, 5.0]))
-    >>> np.diag(inv).tolist(), float(det)
-    ([0.5, 0.25, 0.2], 40.0)
-    """
-    shape = np.shape(m)
-    dtype = np.float32 if np.asarray(m).dtype == np.float32 else np.float64
-    planes = np.ascontiguousarray(np.reshape(m, (-1, 9)).T, dtype=dtype)  # (9, n)
-    adjugate = np.empty_like(planes)
-    scratch = np.empty_like(planes[0])
-    for k, (p, q, r, s) in enumerate(_ADJUGATE):
-        np.multiply(planes[p], planes[q], out=adjugate[k])
-        adjugate[k] -= np.multiply(planes[r], planes[s], out=scratch)
-    det = planes[0] * adjugate[0]
-    det += np.multiply(planes[1], adjugate[3], out=scratch)
-    det += np.multiply(planes[2], adjugate[6], out=scratch)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        adjugate /= det
-    return adjugate.T.reshape(shape), det.reshape(shape[:-2])
-
-
-def crosstalk_matrices(site_responses: np.ndarray, pattern: str) -> np.ndarray:
-    """White-normalised crosstalk matrices M(b), shape (nby, nbx, 3, 3), with ``M(b) @ (1, 1, 1) = 1``.
-
-    Column l is the response to primary l divided by the white, per site, then averaged per channel
-    (so it matches the flat-fielded image the correction unmixes). The columns are then rescaled per
-    bin so that the white is one unit of each primary: the white reference defines neutral.
-
-    Parameters
-    ----------
-    site_responses : ndarray, shape (4, nby, nbx, 4)
-        Black-subtracted bin means of the white, red, green and blue references per Bayer site.
-    pattern : str
-        Bayer pattern.
-
-    Examples
-    --------
-    >>> white = np.ones((1, 1, 4))
-    >>> red, green, blue = (np.array([a, b, b, c], float).reshape(1, 1, 4) for a, b, c in np.eye(3))
-    >>> crosstalk_matrices(np.stack([white, red, green, blue]), "RGGB")[0, 0].tolist()  # no crosstalk: identity
-    [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-    """
-    white = site_responses[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        normalised = site_responses[1:] / white  # (3 primaries, nby, nbx, 4 sites)
-    columns = sites_to_channels(normalised, pattern)  # (3 primaries, nby, nbx, 3 channels)
-    m = np.moveaxis(columns, 0, -1)  # (nby, nbx, channel, primary)
-    inverse, _ = invert_3x3(m)
-    amounts = inverse.sum(axis=-1)  # inv(M) @ 1: how much of each primary the white holds
-    return m * amounts[..., None, :]
 
 
 @dataclasses.dataclass
@@ -785,14 +705,15 @@ def _geometry(
     refs: list[_Reference], sensor_crop: tuple[int, int, int, int] | None = None, sensor_mode: str | None = None
 ) -> SensorMode:
     """Where the references lie on the sensor: the white's (:func:`raw_geometry`, with the user's options, which
-    then stand for every reference), which every other reference whose file says must share."""
+    then stand for every reference), which every other reference whose file says must share (one that says nothing,
+    its geometry assumed, is taken to be of the white's mode)."""
     first = refs[0].raw
     geometry = raw_geometry(first, sensor_crop=sensor_crop, sensor_mode=sensor_mode)
     if sensor_crop is not None or sensor_mode is not None:
         return geometry
     for ref in refs[1:]:
         other = raw_geometry(ref.raw)
-        if other.area() != geometry.area():
+        if "assumed" not in (other.source, geometry.source) and other.area() != geometry.area():
             raise CalibrationInputError(
                 f"references from different sensor modes: {Path(first.source).name} is {geometry.describe()}, "
                 f"{Path(ref.raw.source).name} is {other.describe()}; take every reference in one mode",

@@ -1,0 +1,309 @@
+"""How the lens shading table is chosen: the least-squares fit of libcamera's interpolated gains to the calibration's
+flat field, placed at the calibration's sensor mode on the full-sensor grid; which modes it covers; the neutral colour
+gains of each mode through the exported file.
+
+:mod:`picamcal.export.tuning` writes the files and re-exports these names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import warnings
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..bayer import bin_edges
+from ..calibration import Calibration
+from ..calibration.resample import CROP_TOLERANCE, resample_calibration
+from ..errors import PicamcalWarning
+from ..geometry import SensorMode
+from ..sensors import LSC_GRIDS, SENSORS, sensor_modes
+from .isp import GAIN_LIMITS, TuningError, check_tuning, lens_shading_gains, mode_resampling, table_to_pixels
+
+__all__ = [
+    "MEASURED_WEIGHT",
+    "SMOOTHNESS",
+    "GainFit",
+    "alsc_tables",
+    "fit_gain_tables",
+    "mode_coverage",
+    "neutral_colour_gains",
+    "sensor_mode_geometries",
+]
+
+
+def _bin_average(n_pixels: int, bin_size: int) -> np.ndarray:
+    """Matrix (n_bins x n_pixels) averaging pixels into the calibration's bins."""
+    edges = bin_edges(n_pixels, bin_size)
+    matrix = np.zeros((edges.size - 1, n_pixels))
+    for i, (a, b) in enumerate(itertools.pairwise(edges)):
+        matrix[i, a:b] = 1.0 / (b - a)
+    return matrix
+
+
+#: Weight of the second-difference penalty, relative to the mean diagonal of the normal equations. It keeps
+#: a nearly square fit (a 32 x 32 table on a small frame) from turning bin noise into wild gains, and
+#: changes full-size results by less than 0.01 % of flatness.
+SMOOTHNESS = 1e-3
+
+
+def _regularised_pinv(a: np.ndarray) -> np.ndarray:
+    """``(A'A + lambda D'D)^-1 A'`` with D the second difference: a least-squares inverse that prefers smooth tables."""
+    n = a.shape[1]
+    d = np.diff(np.eye(n), 2, axis=0)
+    normal = a.T @ a
+    return np.linalg.solve(normal + SMOOTHNESS * np.trace(normal) / n * (d.T @ d), a.T)
+
+
+class GainFit(NamedTuple):
+    """The fitted R, G, B gain tables over the full sensor, and which cells the calibration's crop measured."""
+
+    tables: np.ndarray  # (3, rows, cols)
+    measured: np.ndarray  # (rows, cols) bool: cells whose gains reach the calibration's bins
+
+
+def _fit(calibration: Calibration, target: str) -> GainFit:
+    """:func:`fit_gain_tables` with the cells the calibration measured; the others are extended smoothly."""
+    geometry = calibration.geometry
+    assert geometry is not None
+    cols, rows = LSC_GRIDS[target]
+    ry, rx = mode_resampling((cols, rows), geometry)
+    py, px = table_to_pixels(target, calibration.width, calibration.height)
+    fy = _bin_average(calibration.height, calibration.bin_size) @ py @ ry
+    fx = _bin_average(calibration.width, calibration.bin_size) @ px @ rx
+    gains = 1.0 / calibration.white.astype(np.float64)
+    gains /= gains.min(axis=(0, 1))
+    inv_y, inv_x = _regularised_pinv(fy), _regularised_pinv(fx)
+    tables = np.stack([inv_y @ gains[..., c] @ inv_x.T for c in range(3)])
+    # A cell is measured when the ISP's interpolation carries it into the calibration's bins with some weight.
+    seen_y, seen_x = fy.sum(axis=0) > MEASURED_WEIGHT, fx.sum(axis=0) > MEASURED_WEIGHT
+    measured = np.outer(seen_y, seen_x)
+    if not measured.all():  # outside the crop: the smoothness penalty's extension, held within the measured range
+        for table in tables:
+            low, high = table[measured].min(), table[measured].max()
+            table[~measured] = np.clip(table[~measured], low, high)
+    return GainFit(tables, measured)
+
+
+#: A table cell whose interpolation weight summed over the calibration's bins exceeds this (in bins) is measured.
+MEASURED_WEIGHT = 0.05
+
+
+def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
+    """Least-squares R, G, B gain tables (3, rows, cols) over the full sensor whose ISP-interpolated gains flatten
+    the white in the calibration's sensor mode.
+
+    libcamera's tables cover the full sensor; for a mode it resamples them to the mode's crop (``resampleCalTable``,
+    :func:`picamcal.export.isp.mode_resampling`, ``R``), then the IPA and the ISP interpolate them to the pixels
+    (:func:`picamcal.export.isp.table_to_pixels`, ``P``). The per-pixel gains in the calibration's mode are
+    ``Py Ry T Rx' Px'``, averaged over each bin; the target in each bin is the reciprocal of the white,
+    ``1 / W_c(b)`` (paper: ``Cb LST = 1 / W``). The fit is separable, ``T = Fy+ G Fx+.T`` with
+    ``F = bin average @ P @ R`` and ``F+`` a least-squares inverse with a small smoothness penalty
+    (:data:`SMOOTHNESS`). A calibration of the whole sensor (binned or not) measures every cell; one from a
+    cropped mode measures the cells over its crop, and the penalty extends the table smoothly beyond it (held within
+    the measured cells' range): every mode inside the crop comes out flat, the others are extrapolated
+    (:func:`mode_coverage`).
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> fit_gain_tables(cal, "bcm2835").shape, fit_gain_tables(cal, "pisp").shape  # the Pi 4's and the Pi 5's grid
+    ((3, 12, 16), (3, 32, 32))
+    >>> red, green, blue = fit_gain_tables(cal, "pisp")
+    >>> bool(green[0, 0] > 1.5 * green[16, 16])  # the corners, darker, get more gain
+    True
+    """
+    return _fit(calibration, target).tables
+
+
+def mode_coverage(calibration: Calibration) -> dict[str, list[str]]:
+    """Which of the sensor's modes (:func:`picamcal.sensors.sensor_modes`) lie inside the calibration's crop
+    (``"covered"``: an exported table makes them flat) and which reach outside it (``"extrapolated"``), named
+    ``WIDTHxHEIGHT:BITS`` (:func:`sensor_mode_geometries`).
+
+    Examples
+    --------
+    >>> from picamcal.geometry import SensorMode
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> mode_coverage(cal)["extrapolated"]
+    []
+    """
+    geometry = calibration.geometry
+    assert geometry is not None
+    coverage: dict[str, list[str]] = {"covered": [], "extrapolated": []}
+    for name, mode in sensor_mode_geometries(calibration).items():
+        inside = geometry.contains(mode.crop, CROP_TOLERANCE * max(mode.binning, geometry.binning))
+        coverage["covered" if inside else "extrapolated"].append(name)
+    return coverage
+
+
+def sensor_mode_geometries(calibration: Calibration) -> dict[str, SensorMode]:
+    """The sensor's modes by name (``WIDTHxHEIGHT:BITS``) on the calibration's sensor: the registry's when the
+    calibration's sensor size is the registry's, else (a reduced simulated sensor, an unknown one) the whole sensor
+    and the calibration's own mode.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(simulate_references(make_camera("imx219", size=(320, 240)), seed=1)["white"])
+    >>> list(sensor_mode_geometries(cal))  # a reduced sensor: its whole area, its calibration's mode
+    ['320x240:10']
+    """
+    geometry = calibration.geometry
+    assert geometry is not None
+    sensor = SENSORS.get(calibration.sensor or "")
+    if sensor is not None and sensor.size == geometry.sensor_size:
+        modes = {
+            f"{m.width}x{m.height}:{m.bit_depth}": SensorMode(
+                *sensor.size, m.crop, max(1, round(m.crop[2] / m.width)), bit_depth=m.bit_depth, source="registry"
+            )
+            for m in sensor_modes(sensor.name)
+        }
+        return modes
+    bits = geometry.bit_depth or calibration.bit_depth
+    full = SensorMode.full(*geometry.sensor_size, bit_depth=bits, source="assumed")
+    return {f"{m.width}x{m.height}:{bits}": m for m in (full, geometry)}
+
+
+def _describe_cells(mask: np.ndarray) -> str:
+    rows, cols = mask.shape
+    names = []
+    for r, c in zip(*np.nonzero(mask), strict=True):
+        vertical = "top" if r < rows / 3 else "bottom" if r >= 2 * rows / 3 else "middle"
+        horizontal = "left" if c < cols / 3 else "right" if c >= 2 * cols / 3 else "centre"
+        names.append(f"{vertical}-{horizontal}")
+    return ", ".join(sorted(set(names)))
+
+
+def alsc_tables(
+    calibration: Calibration, target: str, *, luminance_strength: float = 1.0, clip_gains: bool = False
+) -> dict[str, np.ndarray]:
+    """The ``luminance_lut``, ``Cr`` and ``Cb`` tables (rows, cols) of a static lens shading table.
+
+    ``L`` is normalised to 1 at its brightest cell, ``Cr = G/R`` and ``Cb = G/B`` gains to 1 at their
+    smallest (libcamera uses only their shape), so the gains libcamera applies are
+    ``R = Cr (1 + s (L - 1))``, ``G = 1 + s (L - 1)``, ``B = Cb (1 + s (L - 1))``.
+
+    Raises
+    ------
+    TuningError
+        A gain would reach the hardware limit (8 on pisp, 16 on bcm2835) and ``clip_gains`` is False; the
+        message names the calibration's file.
+
+    Warns
+    -----
+    PicamcalWarning
+        With ``clip_gains``, which cells were clipped and by how much.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> tables = alsc_tables(cal, "pisp")
+    >>> {name: (table.shape, round(float(table.min()), 3)) for name, table in tables.items()}
+    {'luminance_lut': ((32, 32), 1.0), 'Cr': ((32, 32), 1.0), 'Cb': ((32, 32), 1.0)}
+    >>> round(float(tables["luminance_lut"].max()), 1)  # the darkest corner's gain
+    1.9
+    """
+    fit = _fit(calibration, target)
+    t_r, t_g, t_b = fit.tables
+    if np.any(fit.tables[:, fit.measured] <= 0):
+        raise TuningError(
+            "the fitted lens shading table has gains <= 0: the white reference is too uneven", calibration.path
+        )
+    lum = t_g / t_g[fit.measured].min()
+    cr, cb = t_r / t_g, t_b / t_g
+    cr, cb = cr / cr[fit.measured].min(), cb / cb[fit.measured].min()
+    s = luminance_strength
+    green = 1 + s * (lum - 1)
+    final = {"red": cr * green, "green": green, "blue": cb * green}
+    limit = GAIN_LIMITS[target]
+    ceiling = np.nextafter(limit, 0) - 1e-3
+    over = {name: g > ceiling for name, g in final.items()}
+    if any(m.any() for m in over.values()):
+        worst = max(float(g.max()) for g in final.values())
+        where = _describe_cells(np.logical_or.reduce(list(over.values())))
+        message = (
+            f"the lens shading table needs gains up to {worst:.2f}, above the {target} hardware limit of {limit:g}, "
+            f"in {sum(int(m.sum()) for m in over.values())} cells ({where})"
+        )
+        if not clip_gains:
+            raise TuningError(
+                f"{message}; pass --clip-gains to clip them (those areas then stay darker)", calibration.path
+            )
+        warnings.warn(
+            f"{message}: clipped, so those cells stay up to {100 * (1 - ceiling / worst):.0f} % darker",
+            PicamcalWarning,
+            stacklevel=2,
+        )
+        final = {name: np.minimum(g, ceiling) for name, g in final.items()}
+        green = final["green"]
+        lum = 1 + (green - 1) / s if s > 0 else lum
+        cr, cb = final["red"] / green, final["blue"] / green
+    return {"luminance_lut": lum, "Cr": cr, "Cb": cb}
+
+
+def neutral_colour_gains(
+    calibration: Calibration, tuning: dict[str, Any], mode: SensorMode | None = None
+) -> tuple[float, float]:
+    """The colour gains (red, blue) that make the calibration's white neutral through a tuning file's lens shading,
+    in a sensor mode (default the calibration's own).
+
+    libcamera's ``ColourGains`` (rpicam-apps ``--awbgains R,B``): the white's mean red, green and blue over the
+    mode's frame after the per-pixel gains the ISP applies with this file's static ``rpi.alsc`` tables in that mode
+    (:func:`picamcal.export.isp.lens_shading_gains`: resampled to the mode, interpolated as the IPA and the hardware
+    do), then green / red and green / blue. libcamera scales each mode's colour tables to 1 at their smallest cell
+    over the mode's crop, so the gains differ between modes, and between the vc4 and pisp files of one
+    calibration. A mode reaching outside the calibration's crop is measured over the part inside it.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> from picamcal.export.tuning import export_tuning, load_tuning, stock_tuning_path
+    >>> neutral_colour_gains(cal, export_tuning(cal, load_tuning(stock_tuning_path("imx219", "bcm2835"))))
+    (1.2507, 1.0018)
+    """
+    check_tuning(tuning)
+    geometry = calibration.geometry
+    assert geometry is not None
+    mode = mode or geometry
+    gains = lens_shading_gains(tuning, mode.width, mode.height, mode=mode)
+    area = _overlap(mode, geometry)
+    if area is None:
+        raise TuningError(f"the {mode.describe()} mode does not overlap the calibration's crop", calibration.path)
+    x0, y0, x1, y1 = area
+    crop = (*_sensor_xy(mode, x0, y0), (x1 - x0) * mode.binning, (y1 - y0) * mode.binning)
+    inside = resample_calibration(calibration, dataclasses.replace(mode, crop=crop))
+    if mode.hflip:  # the window in the mirrored image
+        x0, x1 = mode.width - x1, mode.width - x0
+    if mode.vflip:
+        y0, y1 = mode.height - y1, mode.height - y0
+    size = inside.bin_size
+    window = gains[y0:y1, x0:x1]
+    fy, fx = _bin_average(y1 - y0, size), _bin_average(x1 - x0, size)
+    binned = np.stack([fy @ window[..., c] @ fx.T for c in range(3)], axis=-1)
+    red, green, blue = (binned * inside.white).reshape(-1, 3).mean(axis=0)
+    return round(float(green / red), 4), round(float(green / blue), 4)
+
+
+def _sensor_xy(mode: SensorMode, x: int, y: int) -> tuple[int, int]:
+    """The sensor position of the top left of pixel (x, y) of an unflipped mode."""
+    return mode.crop[0] + x * mode.binning, mode.crop[1] + y * mode.binning
+
+
+def _overlap(mode: SensorMode, geometry: SensorMode) -> tuple[int, int, int, int] | None:
+    """The pixels (x0, y0, x1, y1) of the mode's image, as if unflipped, whose sensor area lies inside the
+    calibration's crop, or None."""
+    gx, gy, gw, gh = geometry.crop
+    mx, my, _, _ = mode.crop
+    b = mode.binning
+    x0, y0 = max(0, -(-(gx - mx) // b)), max(0, -(-(gy - my) // b))
+    x1, y1 = min(mode.width, (gx + gw - mx) // b), min(mode.height, (gy + gh - my) // b)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return x0, y0, x1, y1
