@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -267,6 +267,9 @@ def _rig_mismatch(record: Mapping[str, Any], camera: Camera, illuminator: Illumi
     for key in ("kind", "sensor", "size"):
         if before.get(key) != now.get(key):
             return f"it was started with another camera ({key} {before.get(key)}, now {now.get(key)})"
+    for key in ("sensor_mode", "crop"):  # recorded since sensor modes can be chosen
+        if key in before and before[key] != now.get(key):
+            return f"it was started in another sensor mode ({key} {before[key]}, now {now.get(key)})"
     light_before, light_now = (record.get("illuminator") or {}).get("kind"), illuminator.describe().get("kind")
     if light_before != light_now:
         return f"it was started with the {light_before} illuminator, not {light_now} (the colours would differ)"
@@ -391,7 +394,8 @@ def acquire(
 
     A folder with a manifest is a run to resume: its frozen settings are used again (no auto-exposure), the
     frames listed and unchanged are kept, and only the missing ones are captured; the camera (kind, sensor,
-    size) and the illuminator kind must be those of the run, and a colour given again its RGB (the manifest's
+    size, and the sensor mode and its crop where the run records them) and the illuminator kind must be those of
+    the run, and a colour given again its RGB (the manifest's
     ``colours`` keeps the planned ones, so a re-run needs not repeat them).
 
     Parameters
@@ -588,6 +592,7 @@ def open_rig(
     sensor: str = "imx219",
     size: tuple[int, int] | None = None,
     seed: int = 0,
+    sensor_mode: str | None = None,
     colours: Mapping[str, tuple[int, int, int]] | None = None,
     prompt: Callable[[str], Any] = input,
 ) -> Rig:
@@ -606,6 +611,9 @@ def open_rig(
         (:func:`~picamcal.acquire.illuminators.open_illuminator`).
     sensor, size, seed
         Of the simulated camera.
+    sensor_mode : str, optional
+        Of a ``picamera2`` camera: its sensor mode ``WIDTHxHEIGHT[:BITS]`` (default the full-resolution one;
+        :class:`~picamcal.acquire.cameras.Picamera2Camera`).
     colours : mapping, optional
         The run's extra colours, name -> (R, G, B), for the screen's prompts.
     prompt : callable
@@ -639,7 +647,7 @@ def open_rig(
             else "the sim illuminator lights only the sim camera: use --camera sim with --illuminator sim"
         )
     if sim_camera:
-        simulated = SimCamera(sensor, size=size, seed=seed)
+        simulated = cast(SimCamera, open_camera(camera, sensor=sensor, size=size, seed=seed, sensor_mode=sensor_mode))
 
         def place_target(message: str) -> str:
             simulated.place(wheel_scene(wheel_layout(*simulated.describe()["size"])))
@@ -649,7 +657,7 @@ def open_rig(
             shown = _ShownToSim(open_illuminator(illuminator, colours=colours, input_fn=prompt), simulated.light)
             return Rig(simulated, shown, place_target)
         return Rig(simulated, simulated.light, place_target)
-    opened = open_camera(camera)
+    opened = open_camera(camera, sensor_mode=sensor_mode)
     try:
         return Rig(opened, open_illuminator(illuminator, colours=colours, input_fn=prompt), prompt)
     except BaseException:

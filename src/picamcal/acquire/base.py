@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
 from ..errors import PicamcalError
+from ..raw.model import RawImage
 
 
 class IlluminatorError(PicamcalError):
@@ -51,3 +53,51 @@ def check_rgb(red: int, green: int, blue: int) -> tuple[int, int, int]:
     if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 <= v <= 255 for v in rgb):
         raise IlluminatorError(f"a colour is three whole numbers 0-255, got {rgb}")
     return int(red), int(green), int(blue)
+
+
+class CameraError(PicamcalError):
+    """The camera cannot be found, configured or read."""
+
+
+@dataclass(frozen=True)
+class CameraLimits:
+    """The ranges of the camera's exposure controls.
+
+    Attributes
+    ----------
+    exposure_time_us : (float, float)
+        Shortest and longest exposure time in microseconds.
+    analogue_gain : (float, float)
+        Lowest and highest analogue gain.
+    """
+
+    exposure_time_us: tuple[float, float]
+    analogue_gain: tuple[float, float]
+
+
+class Camera(Protocol):
+    """A camera the acquisition can drive: raw frames at frozen settings.
+
+    Implementations: :class:`~picamcal.acquire.pi_camera.Picamera2Camera` (the Pi) and
+    :class:`~picamcal.acquire.cameras.SimCamera` (the simulator).
+    """
+
+    def configure_raw(self) -> None:
+        """Set up an unpacked raw stream of the camera's sensor mode with a neutral pipeline, and start the camera."""
+
+    def set_controls(
+        self, exposure_time_us: float, analogue_gain: float, colour_gains: tuple[float, float] | None = None
+    ) -> None:
+        """Fix the exposure time (µs), analogue gain and (when given) the red and blue colour gains."""
+
+    def capture(self) -> RawImage:
+        """One raw frame at the current settings (unpacked, the whole sensor mode), with its metadata."""
+
+    def limits(self) -> CameraLimits:
+        """The exposure time and gain ranges."""
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-serialisable description with at least ``kind``, ``sensor`` and ``size``."""
+
+    def close(self) -> None:
+        """Stop the camera and release it."""

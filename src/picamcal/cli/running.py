@@ -1,16 +1,36 @@
-"""The commands that run the whole method: ``simulate`` (a camera without one), ``acquire`` (the rig) and
-``demo``."""
+"""The commands that run the whole method: ``simulate`` (a camera without one), ``acquire`` (the rig), ``verify`` (which
+lens shading table is in force on the Pi) and ``demo``."""
 
 # Annotations are not postponed (no `from __future__ import annotations`): typer reads every command's on each run,
 # and would evaluate them from strings each time.
 
+import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from .._atomic import refuse_inputs_as_output
-from ._common import app, choice, console, in_range, parse_colour_options, parse_size, progress_bar, stdout_console
+from ._common import (
+    _parse_sensor_mode,
+    app,
+    choice,
+    console,
+    in_range,
+    parse_colour_options,
+    parse_size,
+    progress_bar,
+    stdout_console,
+)
+
+if TYPE_CHECKING:
+    from ..acquire.verify import Verification
+
+#: ``--illuminator`` of the commands that drive the rig.
+ILLUMINATOR_HELP = (
+    "serial (serial:PORT), gpio (gpio:PIN, default D18), screen (full-screen on this display, or prompts; "
+    "screen:DISPLAY, screen:prompt), manual, sim, or virtual (the light of picamcal virtual-camera)."
+)
 
 
 @app.command("simulate")
@@ -88,13 +108,16 @@ def simulate_cmd(
 def acquire_cmd(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder of the run: created, or resumed if it holds one.")],
     camera: Annotated[str, typer.Option(help="picamera2 (picamera2:N for camera N) or sim.")] = "picamera2",
-    illuminator: Annotated[
-        str,
+    illuminator: Annotated[str, typer.Option(help=ILLUMINATOR_HELP)] = "serial",
+    sensor_mode: Annotated[
+        str | None,
         typer.Option(
-            help="serial (serial:PORT), gpio (gpio:PIN, default D18), screen (full-screen on this display, or "
-            "prompts; screen:DISPLAY, screen:prompt), manual, sim, or virtual (the light of picamcal virtual-camera)."
+            "--sensor-mode",
+            help="WIDTHxHEIGHT[:BITS]: the sensor mode to acquire in (--camera picamera2; default the full-resolution "
+            "one). A cropped mode's calibration, and the lens shading table exported from it, cover that crop only.",
+            callback=_parse_sensor_mode,
         ),
-    ] = "serial",
+    ] = None,
     colour: Annotated[
         list[str] | None,
         typer.Option(
@@ -136,7 +159,14 @@ def acquire_cmd(
         console().print(f"[{done}/{total}] {message}")
 
     with open_rig(
-        camera, illuminator, sensor=sensor, size=parse_size(size), seed=seed, colours=colours, prompt=input
+        camera,
+        illuminator,
+        sensor=sensor,
+        size=parse_size(size),
+        seed=seed,
+        sensor_mode=sensor_mode,
+        colours=colours,
+        prompt=input,
     ) as rig:
         light = rig.illuminator.describe()
         if light.get("shows") == "window":
@@ -157,6 +187,146 @@ def acquire_cmd(
             progress=show,
         )
     console().print(f"wrote {manifest}; calibrate with: picamcal calibrate {out}")
+
+
+@app.command("verify")
+def verify_cmd(
+    camera: Annotated[str, typer.Option(help="picamera2 (picamera2:N for camera N).")] = "picamera2",
+    tuning: Annotated[
+        Path | None,
+        typer.Option(
+            help="The libcamera tuning file to check (picamcal export-tuning writes one); default the one the camera "
+            "loads when given none, picamera2's stock file for the sensor."
+        ),
+    ] = None,
+    illuminator: Annotated[str, typer.Option(help=ILLUMINATOR_HELP)] = "serial",
+    tolerance: Annotated[
+        str,
+        typer.Option(
+            help="FLAT,NEUTRAL in %: a mode passes when every corner is within FLAT % of its centre, per channel, "
+            "and the centre's R/G and B/G within NEUTRAL % of 1."
+        ),
+    ] = "2,3",
+    settle: Annotated[
+        float,
+        typer.Option(help="Seconds to wait after turning the white on.", callback=in_range(0, 600, unit=" s")),
+    ] = 0.5,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+) -> None:
+    """Check which lens shading table is in force: the white through the camera's own pipeline, in every sensor mode.
+
+    Each mode picamera2 reports is captured under the illuminator's white, with the tuning file given (or the one
+    the camera loads by default) in which only the tone curve and the colour matrix are made identity, so that
+    lens shading alone is measured; the colour gains are those the file records for the mode (picamcal
+    export-tuning writes them), else the auto white balance's. Per mode it prints each channel's corner over the
+    centre (the worst corner) and the centre's R/G and B/G. Exit status 0 when every mode is flat and neutral within
+    the tolerance, 1 otherwise, 2 for a bad input (a missing file, a tuning for another sensor or the other Pi).
+    """
+    from ..acquire.pi_camera import picamera2_number
+    from ..acquire.verify import verify_modes
+
+    number = picamera2_number(camera)
+    if number is None:
+        raise typer.BadParameter(
+            f"{camera!r}: verify checks a Raspberry Pi camera's own pipeline: picamera2 or picamera2:N (on a PC, "
+            "under picamcal virtual-camera)",
+            param_hint="--camera",
+        )
+    flatness, neutrality = _parse_tolerance(tolerance)
+    with progress_bar() as progress:
+        task = progress.add_task("verify", total=None)
+
+        def step(mode: str, done: int, total: int) -> None:
+            progress.update(task, description=mode, completed=done, total=total)
+
+        result = verify_modes(
+            number,
+            tuning,
+            illuminator,
+            flatness_tolerance=flatness,
+            neutrality_tolerance=neutrality,
+            settle_s=settle,
+            progress=step,
+        )
+    if as_json:
+        print(json.dumps(result.to_record(), indent=2))
+    else:
+        _print_verification(result)
+    if not result.passed:
+        raise typer.Exit(1)
+
+
+def _parse_tolerance(text: str) -> tuple[float, float]:
+    """``--tolerance FLAT[,NEUTRAL]`` in % as fractions; NEUTRAL is 3 % when left out."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) == 1:
+        values.append(3.0)
+    if len(values) != 2:
+        raise typer.BadParameter(f"{text!r} is not FLAT or FLAT,NEUTRAL in % (2 or 2,3)", param_hint="--tolerance")
+    if not all(0 < v < 100 for v in values):  # NaN fails this too
+        raise typer.BadParameter(
+            f"{text!r}: each tolerance is a percentage above 0 and below 100", param_hint="--tolerance"
+        )
+    return values[0] / 100, values[1] / 100
+
+
+#: How the table names where each mode's colour gains came from.
+_GAINS_SOURCES = {"colour_gains_by_mode": "mode's", "colour_gains": "file's", "auto white balance": "AWB"}
+
+
+def _print_verification(result: "Verification") -> None:
+    from rich.table import Table
+
+    table = Table(title=f"picamcal verify: {result.sensor} ({result.platform}), {result.tuning}")
+    figures = ("R corner", "G corner", "B corner", "centre R/G", "centre B/G")
+    for heading in (
+        "mode",
+        "crop on the sensor",
+        *figures[:3],
+        "worst corner",
+        *figures[3:],
+        "colour gains",
+        "verdict",
+    ):
+        table.add_column(heading, justify="right" if heading in figures else "left")
+    for check in result.modes:
+        x, y, w, h = check.crop
+        problems = [
+            *([f"not flat ({100 * check.flatness:.1f} %)"] if not check.is_flat(result.flatness_tolerance) else []),
+            *(
+                [f"not neutral ({100 * check.neutrality:.1f} %)"]
+                if not check.is_neutral(result.neutrality_tolerance)
+                else []
+            ),
+        ]
+        table.add_row(
+            check.mode,
+            f"{w}x{h} at {x},{y}",
+            *(f"{v:.3f}" for v in check.worst),
+            check.worst_corner,
+            f"{check.centre[0]:.3f}",
+            f"{check.centre[1]:.3f}",
+            f"{check.colour_gains[0]:.3f},{check.colour_gains[1]:.3f} {_GAINS_SOURCES.get(check.gains_source, '')}",
+            "; ".join(problems) or "ok",
+        )
+    stdout = stdout_console()
+    stdout.print(table)
+    for line in (
+        "R, G, B corner: each channel's corner furthest from the centre, over the centre (linear: the tone curve and "
+        "the colour matrix made identity); worst corner: the corner furthest in any channel. Colour gains: the "
+        "tuning file's for the mode, the file's own, or the auto white balance's (AWB).",
+        f"Tolerance: flat when every corner is within {100 * result.flatness_tolerance:g} % of the centre in each "
+        f"channel; neutral when the centre's R/G and B/G are within {100 * result.neutrality_tolerance:g} % of 1.",
+    ):
+        stdout.print(line, markup=False, highlight=False)
+    failed = [check.mode for check in result.modes if not result.passes(check)]
+    if failed:
+        stdout.print(f"{len(failed)} of {len(result.modes)} modes fail: {', '.join(failed)}", markup=False)
+    else:
+        stdout.print(f"every mode ({len(result.modes)}) is flat and neutral", markup=False)
 
 
 @app.command("demo")
@@ -234,6 +404,3 @@ def demo_cmd(
         )
     stdout.print(f"Calibration, previews (target_<mode>.png), the exports above and figures.json are in {out}/")
     stdout.print(f"The report: {out / 'report' / 'index.html'}")
-
-
-#: picamcal's warnings of this command, and the lines libraries logged: printed when it ends well, and when it
