@@ -481,6 +481,11 @@ def flipped_red(d: Path, b: Path) -> Path:
 
 case("calibrate references from different modes", calibrate_full("red", flipped_red), "red.dng",
      "different sensor modes")  # fmt: skip
+# verify: what is refused before any camera is opened
+case("verify --camera sim", lambda d, b: ["verify", "--camera", "sim"], "--camera", "picamera2")
+case("verify --tolerance 0,x", lambda d, b: ["verify", "--tolerance", "0,x"], "--tolerance")
+case("verify --tuning missing", lambda d, b: ["verify", "--tuning", d / "missing.json"], "missing.json")
+case("verify --tuning a calibration", lambda d, b: ["verify", "--tuning", b / "cal.npz"], "cal.npz")
 # correct: workers, mosaic, modes, formats, encodings
 case("correct --workers 100000", correct_with("--workers", "100000"), "--workers", "100000")
 case("correct --mosaic without --zarr", correct_with("--mosaic", "2x2"), "--mosaic", "--zarr")

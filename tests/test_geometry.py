@@ -230,8 +230,12 @@ def test_a_tuning_exported_from_a_cropped_mode_is_flat_in_every_mode_inside_its_
     with pytest.warns(picamcal.PicamcalWarning, match="covers the 448x252 sensor area at \\(96, 96\\) only"):
         tuning = export_tuning(cal, load_tuning(stock_tuning_path("imx219", target)))
     record = tuning["picamcal"]
-    assert record["geometry"]["crop"] == list(crop) and record["modes_extrapolated"] == ["640x480:10"]
-    assert set(record["colour_gains_by_mode"]) == {"640x480:10", "448x252:10"}
+    # The IMX219's modes on this sensor, reduced to 640 x 480 as the simulator and the virtual camera reduce them: the
+    # cropped 1920x1080 and 640x480 modes (374x210, 124x94 here) lie inside the crop, the full-field ones do not.
+    assert record["geometry"]["crop"] == list(crop)
+    assert record["modes_covered"] == ["124x94:8", "374x210:8", "124x94:10", "374x210:10"]
+    assert record["modes_extrapolated"] == ["320x240:8", "640x480:8", "320x240:10", "640x480:10"]
+    assert set(record["colour_gains_by_mode"]) == {*record["modes_covered"], *record["modes_extrapolated"]}
     inside = {"own": (crop, 1), "inner crop": ((160, 120, 320, 200), 1), "binned inner": ((160, 120, 320, 200), 2)}
     if target == "bcm2835":
         # On this reduced sensor the binned inner mode is a 160 x 100 frame: the Pi 4's hardware grid over it (cells

@@ -481,9 +481,10 @@ DRIVER_MODES: dict[str, tuple[DriverMode, ...]] = {
 }
 
 
-def sensor_modes(name: str) -> tuple[DriverMode, ...]:
+def sensor_modes(name: str, size: tuple[int, int] | None = None) -> tuple[DriverMode, ...]:
     """The modes of a registry sensor: its driver's (:data:`DRIVER_MODES`), else nominal ones (its binned modes of
-    the whole array and the full array, at its native bit depth).
+    the whole array and the full array, at its native bit depth); with ``size``, of the sensor reduced to that many
+    pixels (:func:`scaled_mode`: the simulator's and the virtual camera's ``--size``).
 
     Examples
     --------
@@ -491,9 +492,45 @@ def sensor_modes(name: str) -> tuple[DriverMode, ...]:
     [(1332, 990, (696, 528, 2664, 1980)), (2028, 1080, (0, 440, 4056, 2160))]
     >>> [(m.width, m.height) for m in sensor_modes("imx296")]
     [(1456, 1088)]
+    >>> [(m.width, m.height, m.crop) for m in sensor_modes("imx219", (640, 480))][:2]
+    [(124, 94, (196, 146, 248, 188)), (320, 240, (0, 0, 640, 480))]
     """
     sensor = get_sensor(name)
     if sensor.name in DRIVER_MODES:
-        return DRIVER_MODES[sensor.name]
-    full = (0, 0, sensor.width, sensor.height)
-    return tuple(DriverMode(w, h, sensor.bit_depth, full) for w, h in (*sorted(sensor.binned_modes), sensor.size))
+        modes = DRIVER_MODES[sensor.name]
+    else:
+        full = (0, 0, sensor.width, sensor.height)
+        modes = tuple(DriverMode(w, h, sensor.bit_depth, full) for w, h in (*sorted(sensor.binned_modes), sensor.size))
+    if size is None or tuple(size) == sensor.size:
+        return modes
+    scaled = []
+    for mode in modes:
+        width, height, crop = scaled_mode(mode.width, mode.height, mode.crop, sensor.size, size)
+        scaled.append(DriverMode(width, height, mode.bit_depth, crop))
+    # Two modes may meet at one size on a small sensor: libcamera lists each size once per bit depth.
+    return tuple({(m.bit_depth, m.width, m.height): m for m in scaled}.values())
+
+
+def _even(value: float) -> int:
+    return max(2, 2 * round(value / 2))
+
+
+def scaled_mode(
+    width: int, height: int, crop: tuple[int, int, int, int], full: tuple[int, int], size: tuple[int, int]
+) -> tuple[int, int, tuple[int, int, int, int]]:
+    """A mode of a sensor whose pixel array is reduced from ``full`` to ``size``: its output size, each scaled and
+    kept even, and its crop, scaled, at the same binning and inside the reduced array.
+
+    Examples
+    --------
+    >>> scaled_mode(1920, 1080, (680, 692, 1920, 1080), (3280, 2464), (640, 480))
+    (374, 210, (132, 134, 374, 210))
+    """
+    sx, sy = size[0] / full[0], size[1] / full[1]
+    binning = max(1, round(crop[2] / width))
+    out = (_even(width * sx), _even(height * sy))
+    area = (min(out[0] * binning, size[0]), min(out[1] * binning, size[1]))
+    out = (area[0] // binning // 2 * 2, area[1] // binning // 2 * 2)
+    x, y = crop[:2]
+    origin = (min(_even(x * sx) if x else 0, size[0] - area[0]), min(_even(y * sy) if y else 0, size[1] - area[1]))
+    return out[0], out[1], (origin[0], origin[1], out[0] * binning, out[1] * binning)

@@ -56,9 +56,14 @@ def import_picamera2() -> Any:
     """picamera2, imported; CameraError saying how to install it when it is not."""
     try:
         import picamera2
-    except ImportError:
+    except ImportError as exc:
+        if exc.name == "picamera2":
+            raise CameraError(
+                "picamera2 is not installed: on a Raspberry Pi install picamcal[pi] (or apt install python3-picamera2)"
+            ) from None
         raise CameraError(
-            "picamera2 is not installed: on a Raspberry Pi install picamcal[pi] (or apt install python3-picamera2)"
+            f"picamera2 cannot be imported (no module named {exc.name!r}): it needs libcamera, which a Raspberry Pi "
+            "has; on a PC run the command under picamcal virtual-camera"
         ) from None
     return picamera2
 

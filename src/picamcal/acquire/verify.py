@@ -514,10 +514,9 @@ def verify_modes(
     check_tolerances(flatness_tolerance, neutrality_tolerance)
     if settle_s < 0:
         raise PicamcalError(f"the settling time must be >= 0 s, got {settle_s}")
+    given = None if tuning is None else load_tuning(tuning)  # a bad file is its own error, camera or not
     module = import_picamera2()
-    given = None
-    if tuning is not None:
-        given = load_tuning(tuning)
+    if given is not None:
         check_tuning_target(given, module, str(tuning))
     model = camera_model(camera_num)
     if tuning is None:

@@ -445,7 +445,7 @@ def export_tuning(
 
     The table covers the full sensor, as libcamera's do: the calibration's cells are placed at its sensor mode's
     crop (:func:`fit_gain_tables`), so its own mode and every mode inside its crop come out flat; a calibration
-    from a cropped mode extends the table smoothly beyond its crop, with a warning naming the modes it
+    from a cropped mode extends the table beyond its crop by its edge values, with a warning naming the modes it
     extrapolates (:func:`mode_coverage`).
 
     A top-level ``"picamcal"`` entry, which libcamera ignores, records the colour gains that make the

@@ -65,7 +65,7 @@ class GainFit(NamedTuple):
 
 
 def _fit(calibration: Calibration, target: str) -> GainFit:
-    """:func:`fit_gain_tables` with the cells the calibration measured; the others are extended smoothly."""
+    """:func:`fit_gain_tables` with the cells the calibration measured; the others take the nearest measured cell's."""
     geometry = calibration.geometry
     assert geometry is not None
     cols, rows = LSC_GRIDS[target]
@@ -80,10 +80,14 @@ def _fit(calibration: Calibration, target: str) -> GainFit:
     # A cell is measured when the ISP's interpolation carries it into the calibration's bins with some weight.
     seen_y, seen_x = fy.sum(axis=0) > MEASURED_WEIGHT, fx.sum(axis=0) > MEASURED_WEIGHT
     measured = np.outer(seen_y, seen_x)
-    if not measured.all():  # outside the crop: the smoothness penalty's extension, held within the measured range
-        for table in tables:
-            low, high = table[measured].min(), table[measured].max()
-            table[~measured] = np.clip(table[~measured], low, high)
+    if not measured.all():
+        # Outside the crop nothing is measured: each cell takes the nearest measured cell's gains, the table extended
+        # by its edge values as libcamera's resampling clamps at a table's edges (continuous, and never beyond the
+        # gains the crop needed, which the fit's smoothness penalty alone does not promise).
+        ys, xs = np.flatnonzero(seen_y), np.flatnonzero(seen_x)
+        iy = np.clip(np.arange(rows), ys.min(), ys.max())
+        ix = np.clip(np.arange(cols), xs.min(), xs.max())
+        tables = tables[:, iy][:, :, ix]
     return GainFit(tables, measured)
 
 
@@ -102,8 +106,8 @@ def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
     ``1 / W_c(b)`` (paper: ``Cb LST = 1 / W``). The fit is separable, ``T = Fy+ G Fx+.T`` with
     ``F = bin average @ P @ R`` and ``F+`` a least-squares inverse with a small smoothness penalty
     (:data:`SMOOTHNESS`). A calibration of the whole sensor (binned or not) measures every cell; one from a
-    cropped mode measures the cells over its crop, and the penalty extends the table smoothly beyond it (held within
-    the measured cells' range): every mode inside the crop comes out flat, the others are extrapolated
+    cropped mode measures the cells over its crop, and the table is extended beyond it by its edge values: every mode
+    inside the crop comes out flat, the others are extrapolated
     (:func:`mode_coverage`).
 
     Examples
@@ -142,27 +146,30 @@ def mode_coverage(calibration: Calibration) -> dict[str, list[str]]:
 
 
 def sensor_mode_geometries(calibration: Calibration) -> dict[str, SensorMode]:
-    """The sensor's modes by name (``WIDTHxHEIGHT:BITS``) on the calibration's sensor: the registry's when the
-    calibration's sensor size is the registry's, else (a reduced simulated sensor, an unknown one) the whole sensor
-    and the calibration's own mode.
+    """The sensor's modes by name (``WIDTHxHEIGHT:BITS``) on the calibration's sensor: the registry's
+    (:func:`picamcal.sensors.sensor_modes`, reduced with the sensor where the calibration's is a reduced one, as the
+    simulator's and the virtual camera's ``--size`` make them); for a sensor outside the registry, or a calibration
+    whose sensor is only assumed to be of its own size, the whole sensor and the calibration's own mode.
 
     Examples
     --------
     >>> from picamcal.simulate import make_camera, simulate_references
     >>> cal = picamcal.calibrate(simulate_references(make_camera("imx219", size=(320, 240)), seed=1)["white"])
-    >>> list(sensor_mode_geometries(cal))  # a reduced sensor: its whole area, its calibration's mode
-    ['320x240:10']
+    >>> list(sensor_mode_geometries(cal))  # the IMX219's modes on a sensor reduced to 320 x 240
+    ['62x46:8', '160x120:8', '188x106:8', '320x240:8', '62x46:10', '160x120:10', '188x106:10', '320x240:10']
     """
     geometry = calibration.geometry
     assert geometry is not None
     sensor = SENSORS.get(calibration.sensor or "")
-    if sensor is not None and sensor.size == geometry.sensor_size:
-        modes = {
-            f"{m.width}x{m.height}:{m.bit_depth}": SensorMode(
-                *sensor.size, m.crop, max(1, round(m.crop[2] / m.width)), bit_depth=m.bit_depth, source="registry"
+    size = geometry.sensor_size
+    if sensor is not None and (size == sensor.size or geometry.source not in ("assumed", "unknown")):
+        modes = {}
+        for m in sensor_modes(sensor.name, size):
+            binning = max(1, round(m.crop[2] / m.width))
+            mode = SensorMode(
+                *size, m.crop, binning, bit_depth=m.bit_depth, source="registry", output=(m.width, m.height)
             )
-            for m in sensor_modes(sensor.name)
-        }
+            modes[f"{m.width}x{m.height}:{m.bit_depth}"] = mode
         return modes
     bits = geometry.bit_depth or calibration.bit_depth
     full = SensorMode.full(*geometry.sensor_size, bit_depth=bits, source="assumed")

@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from ..errors import PicamcalError
-from ..sensors import DRIVER_MODES, SENSORS, DriverMode, get_sensor
+from ..sensors import DRIVER_MODES, SENSORS, DriverMode, get_sensor, scaled_mode
 
 
 @dataclass(frozen=True)
@@ -292,10 +292,6 @@ def sensor_spec(name: str) -> SensorSpec:
     )
 
 
-def _even(value: float) -> int:
-    return max(2, 2 * round(value / 2))
-
-
 def scaled_spec(spec: SensorSpec, size: tuple[int, int] | None) -> SensorSpec:
     """The sensor with its pixel array reduced to ``size`` (``--size``): every mode and crop scaled with it, the
     timing (line times, frame rates) kept.
@@ -321,16 +317,10 @@ def scaled_spec(spec: SensorSpec, size: tuple[int, int] | None) -> SensorSpec:
             f"the virtual {spec.name} is at most {spec.width}x{spec.height} pixels (its full array), "
             f"not {width}x{height}"
         )
-    sx, sy = width / spec.width, height / spec.height
     modes = []
-    for mode in spec.modes:
-        x, y = mode.crop[:2]
-        binning = mode.binning
-        out = (_even(mode.width * sx), _even(mode.height * sy))
-        size = (min(out[0] * binning, width), min(out[1] * binning, height))
-        out = (size[0] // binning // 2 * 2, size[1] // binning // 2 * 2)
-        origin = (min(_even(x * sx) if x else 0, width - size[0]), min(_even(y * sy) if y else 0, height - size[1]))
-        modes.append(replace(mode, width=out[0], height=out[1], crop=(*origin, out[0] * binning, out[1] * binning)))
+    for mode in spec.modes:  # scaled as the registry scales a reduced sensor's modes, timing kept
+        w, h, crop = scaled_mode(mode.width, mode.height, mode.crop, (spec.width, spec.height), (width, height))
+        modes.append(replace(mode, width=w, height=h, crop=crop))
     # Two modes may meet at one size on a small sensor: libcamera lists each size once per bit depth.
     unique = {(m.bit_depth, m.width, m.height): m for m in modes}
     return replace(spec, width=width, height=height, modes=tuple(unique.values()))
