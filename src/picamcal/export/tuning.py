@@ -487,8 +487,8 @@ def export_tuning(
     >>> alsc = next(a["rpi.alsc"] for a in tuning["algorithms"] if "rpi.alsc" in a)
     >>> alsc["n_iter"], len(alsc["luminance_lut"])  # a static 32 x 32 table on a Pi 5
     (0, 1024)
-    >>> tuning["picamcal"]["colour_gains"]  # rpicam-still --awbgains 1.2308,0.9833 makes the white neutral
-    [1.2308, 0.9833]
+    >>> tuning["picamcal"]["colour_gains"]  # rpicam-still --awbgains 1.2333,0.9837 makes the white neutral
+    [1.2333, 0.9837]
     """
     target = check_tuning(base, base_path)
     if isinstance(ct, bool) or not isinstance(ct, (int, float)) or not math.isfinite(ct) or ct < 1:

@@ -43,18 +43,10 @@ def _bin_average(n_pixels: int, bin_size: int) -> np.ndarray:
     return matrix
 
 
-#: Weight of the second-difference penalty, relative to the mean diagonal of the normal equations. It keeps
-#: a nearly square fit (a 32 x 32 table on a small frame) from turning bin noise into wild gains, and
-#: changes full-size results by less than 0.01 % of flatness.
+#: Weight of the second-difference penalty (along rows and columns), relative to the mean diagonal of the normal
+#: equations. It keeps a nearly square fit (a 32 x 32 table on a small frame) from turning bin noise into wild gains,
+#: and changes full-size results by less than 0.01 % of flatness.
 SMOOTHNESS = 1e-3
-
-
-def _regularised_pinv(a: np.ndarray) -> np.ndarray:
-    """``(A'A + lambda D'D)^-1 A'`` with D the second difference: a least-squares inverse that prefers smooth tables."""
-    n = a.shape[1]
-    d = np.diff(np.eye(n), 2, axis=0)
-    normal = a.T @ a
-    return np.linalg.solve(normal + SMOOTHNESS * np.trace(normal) / n * (d.T @ d), a.T)
 
 
 class GainFit(NamedTuple):
@@ -64,21 +56,56 @@ class GainFit(NamedTuple):
     measured: np.ndarray  # (rows, cols) bool: cells whose gains reach the calibration's bins
 
 
-def _fit(calibration: Calibration, target: str) -> GainFit:
-    """:func:`fit_gain_tables` with the cells the calibration measured; the others take the nearest measured cell's."""
+def _mode_matrices(target: str, mode: SensorMode, bin_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Fy, Fx): from a full-sensor table to the mean gain of each bin of a mode's image, per axis (libcamera's
+    resampling to the mode, the IPA's and the ISP's interpolation to the pixels, the bins' average)."""
+    cols, rows = LSC_GRIDS[target]
+    ry, rx = mode_resampling((cols, rows), mode)
+    py, px = table_to_pixels(target, mode.width, mode.height)
+    return _bin_average(mode.height, bin_size) @ py @ ry, _bin_average(mode.width, bin_size) @ px @ rx
+
+
+def _fitted_modes(calibration: Calibration) -> list[Calibration]:
+    """The calibration in its own mode and in every other sensor mode inside its crop (:func:`mode_coverage`), at
+    that mode's bins (:func:`picamcal.calibration.resample.resample_calibration`), each area once."""
     geometry = calibration.geometry
     assert geometry is not None
+    fitted, areas = [calibration], {geometry.area()}
+    modes = sensor_mode_geometries(calibration)
+    for name in mode_coverage(calibration)["covered"]:
+        mode = dataclasses.replace(modes[name], hflip=geometry.hflip, vflip=geometry.vflip)  # the camera's transform
+        # A mode of too few bins (on a sensor reduced to a few hundred pixels) measures nothing the others do not.
+        if mode.area() not in areas and min(mode.width, mode.height) >= MIN_FITTED_BINS * calibration.bin_size:
+            areas.add(mode.area())
+            fitted.append(resample_calibration(calibration, mode))
+    return fitted
+
+
+#: The fewest bins along each side of a mode for the fit to take it beside the calibration's own mode.
+MIN_FITTED_BINS = 8
+
+
+def _fit(calibration: Calibration, target: str) -> GainFit:
+    """:func:`fit_gain_tables` with the cells the calibration measured; the others take the nearest measured cell's."""
     cols, rows = LSC_GRIDS[target]
-    ry, rx = mode_resampling((cols, rows), geometry)
-    py, px = table_to_pixels(target, calibration.width, calibration.height)
-    fy = _bin_average(calibration.height, calibration.bin_size) @ py @ ry
-    fx = _bin_average(calibration.width, calibration.bin_size) @ px @ rx
-    gains = 1.0 / calibration.white.astype(np.float64)
-    gains /= gains.min(axis=(0, 1))
-    inv_y, inv_x = _regularised_pinv(fy), _regularised_pinv(fx)
-    tables = np.stack([inv_y @ gains[..., c] @ inv_x.T for c in range(3)])
-    # A cell is measured when the ISP's interpolation carries it into the calibration's bins with some weight.
-    seen_y, seen_x = fy.sum(axis=0) > MEASURED_WEIGHT, fx.sum(axis=0) > MEASURED_WEIGHT
+    n = rows * cols
+    scale = (1.0 / calibration.white.astype(np.float64)).min(axis=(0, 1))  # one normalisation for every mode
+    normal, rhs = np.zeros((n, n)), np.zeros((3, n))
+    seen_y = seen_x = np.zeros(0)
+    for fitted in _fitted_modes(calibration):
+        assert fitted.geometry is not None
+        fy, fx = _mode_matrices(target, fitted.geometry, fitted.bin_size)
+        if fitted is calibration:  # a cell is measured when the ISP carries it into the bins with some weight
+            seen_y, seen_x = fy.sum(axis=0) > MEASURED_WEIGHT, fx.sum(axis=0) > MEASURED_WEIGHT
+        gains = 1.0 / (fitted.white.astype(np.float64) * scale)
+        weight = 1.0 / gains[..., 0].size  # each mode's mean square error counts alike
+        # vec(Fy T Fx') = (Fx kron Fy) vec(T), vec column-major: the normal equations of all modes at once.
+        normal += weight * np.kron(fx.T @ fx, fy.T @ fy)
+        rhs += weight * np.stack([(fy.T @ gains[..., c] @ fx).ravel(order="F") for c in range(3)])
+    dy, dx = np.diff(np.eye(rows), 2, axis=0), np.diff(np.eye(cols), 2, axis=0)
+    penalty = np.kron(np.eye(cols), dy.T @ dy) + np.kron(dx.T @ dx, np.eye(rows))
+    solution = np.linalg.solve(normal + SMOOTHNESS * np.trace(normal) / n * penalty, rhs.T)
+    tables = np.stack([solution[:, c].reshape((rows, cols), order="F") for c in range(3)])
     measured = np.outer(seen_y, seen_x)
     if not measured.all():
         # Outside the crop nothing is measured: each cell takes the nearest measured cell's gains, the table extended
@@ -97,18 +124,20 @@ MEASURED_WEIGHT = 0.05
 
 def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
     """Least-squares R, G, B gain tables (3, rows, cols) over the full sensor whose ISP-interpolated gains flatten
-    the white in the calibration's sensor mode.
+    the white in the calibration's sensor mode and in every mode inside its crop.
 
     libcamera's tables cover the full sensor; for a mode it resamples them to the mode's crop (``resampleCalTable``,
     :func:`picamcal.export.isp.mode_resampling`, ``R``), then the IPA and the ISP interpolate them to the pixels
-    (:func:`picamcal.export.isp.table_to_pixels`, ``P``). The per-pixel gains in the calibration's mode are
-    ``Py Ry T Rx' Px'``, averaged over each bin; the target in each bin is the reciprocal of the white,
-    ``1 / W_c(b)`` (paper: ``Cb LST = 1 / W``). The fit is separable, ``T = Fy+ G Fx+.T`` with
-    ``F = bin average @ P @ R`` and ``F+`` a least-squares inverse with a small smoothness penalty
-    (:data:`SMOOTHNESS`). A calibration of the whole sensor (binned or not) measures every cell; one from a
-    cropped mode measures the cells over its crop, and the table is extended beyond it by its edge values: every mode
-    inside the crop comes out flat, the others are extrapolated
-    (:func:`mode_coverage`).
+    (:func:`picamcal.export.isp.table_to_pixels`, ``P``). The per-pixel gains in a mode are ``Py Ry T Rx' Px'``,
+    averaged over each bin, ``Fy T Fx'`` with ``F = bin average @ P @ R``; the target in each bin is the reciprocal of
+    the white there, ``1 / W_c(b)`` (paper: ``Cb LST = 1 / W``), with the white taken at the mode's bins
+    (:func:`picamcal.calibration.resample.resample_calibration`). The table is the least-squares solution over the
+    calibration's mode and every sensor mode inside its crop (:func:`mode_coverage`), each mode's mean square
+    error counting alike, with a small second-difference penalty (:data:`SMOOTHNESS`); libcamera resamples a table
+    coarsely to a cropped mode (most on a Pi 4's 16 x 12 grid), so a table fitted to one mode alone can miss
+    another by several per cent. A calibration of the whole sensor (binned or not) measures every cell; one from a
+    cropped mode measures the cells over its crop, and the table is extended beyond it by its edge values: every
+    mode inside the crop comes out flat, the others are extrapolated.
 
     Examples
     --------
@@ -273,7 +302,7 @@ def neutral_colour_gains(
     >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
     >>> from picamcal.export.tuning import export_tuning, load_tuning, stock_tuning_path
     >>> neutral_colour_gains(cal, export_tuning(cal, load_tuning(stock_tuning_path("imx219", "bcm2835"))))
-    (1.2507, 1.0018)
+    (1.2514, 1.0028)
     """
     check_tuning(tuning)
     geometry = calibration.geometry
