@@ -25,7 +25,11 @@ import picamcal
 
 #: Examples that run a whole workflow and cannot be fast: marked ``slow``, so the fast loop (``-m "not slow"``,
 #: CONTRIBUTING.md) leaves them out; the full run still runs them. Every other example takes well under a second.
-SLOW_EXAMPLES = {"picamcal.demo.run_demo", "picamcal.report.html.write_report"}
+SLOW_EXAMPLES = {
+    "picamcal.demo.run_demo",
+    "picamcal.report.html.write_report",
+    "picamcal.live.unmixer.LiveUnmixer.for_camera",
+}
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -28,10 +28,10 @@ from numpy.typing import DTypeLike
 
 from .bayer import bin_centres, bin_sites, block_mean, centre_region, sites_to_channels
 from .calibration import Calibration
-from .calibration.resample import calibration_for_raw
+from .calibration.resample import CROP_TOLERANCE, calibration_for_raw
 from .ckernel import correct_c
-from .errors import KernelBuildError, PicamcalError
-from .geometry import SensorMode
+from .errors import CalibrationFileError, KernelBuildError, PicamcalError
+from .geometry import SensorMode, image_to_image, sensor_area
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from .kernels import (
     CorrectionFields,
@@ -388,6 +388,62 @@ def _correct_reference(raw: RawImage, calibration: Calibration, mode: Mode) -> n
     return rgb
 
 
+def _stream_on_calibration(
+    calibration: Calibration,
+    size: tuple[int, int],
+    crop: tuple[int, int, int, int] | None,
+    sensor_mode: SensorMode | None,
+    source: str,
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The affine map (per axis, x then y) ``u_cal = a u + b`` from a processed image's continuous coordinates to
+    the calibration image's, through the camera's sensor mode: the ISP cropped the mode's image to the ScalerCrop
+    ``crop`` (libcamera's ``ispCrop``, in the mode's unflipped pixels) and scaled it to ``size``; the mode lies on
+    the sensor as its crop, binning and flips say, as does the calibration
+    (:func:`picamcal.geometry.image_to_image`)."""
+    geometry = calibration.geometry or SensorMode.full(calibration.width, calibration.height)
+    mode = sensor_mode or geometry
+    if mode.sensor_size != geometry.sensor_size:
+        raise CalibrationFileError(
+            f"image does not match the calibration: the camera's sensor mode is of a "
+            f"{mode.sensor_width}x{mode.sensor_height} sensor, the calibration of a "
+            f"{geometry.sensor_width}x{geometry.sensor_height} one",
+            source,
+        )
+    try:
+        x, y, w, h = SensorMode(*mode.sensor_size, crop or mode.crop).crop
+    except PicamcalError as exc:
+        raise PicamcalError(exc.problem, source) from None
+    width, height = size
+    if abs((w / width) / (h / height) - 1) > 0.02:
+        raise PicamcalError(
+            f"image is {width}x{height} but shows a {w}x{h} sensor area: the aspect ratios differ; give the sensor "
+            "area it shows (--sensor-crop X,Y,WIDTH,HEIGHT in full-sensor pixels: picamera2's ScalerCrop) or the "
+            "camera's sensor mode (--sensor-mode WIDTHxHEIGHT)",
+            source,
+        )
+    mode_x, mode_y, mode_w, mode_h = mode.crop
+    sx, sy = mode.width / mode_w, mode.height / mode_h
+    box = ((x - mode_x) * sx, (y - mode_y) * sy, w * sx, h * sy)  # the ISP's crop, in the mode's image
+    area = sensor_area(mode, box)
+    if not geometry.contains(area, CROP_TOLERANCE * max(mode.binning, geometry.binning)):
+        gx, gy, gw, gh = geometry.crop
+        raise CalibrationFileError(
+            f"image does not match the calibration: it shows the sensor area {area[2]}x{area[3]} at "
+            f"({area[0]}, {area[1]}), outside the calibration's {gw}x{gh} at ({gx}, {gy}): calibrate in a mode that "
+            "covers it (a full-sensor or binned mode covers every mode)",
+            source,
+        )
+    (ax, bx), (ay, by) = image_to_image(mode, geometry)
+    return (ax * box[2] / width, ax * box[0] + bx), (ay * box[3] / height, ay * box[1] + by)
+
+
+def _image_centres(centres: np.ndarray, a: float, b: float) -> tuple[np.ndarray, bool]:
+    """The calibration's bin centres (pixel centres at integers) in the image's pixels by ``u_cal = a u + b``, in
+    increasing order, and whether that reversed them (the image mirrored against the calibration)."""
+    positions = (centres + 0.5 - b) / a - 0.5
+    return (positions[::-1], True) if a < 0 else (positions, False)
+
+
 def correct_processed(
     image: ProcessedImage | np.ndarray,
     calibration: Calibration,
@@ -396,6 +452,7 @@ def correct_processed(
     white: ProcessedImage | np.ndarray | None = None,
     ccm: np.ndarray | None = None,
     crop: tuple[int, int, int, int] | None = None,
+    sensor_mode: SensorMode | None = None,
     isp_gains: np.ndarray | None = None,
     colour_gains: tuple[float, float] | np.ndarray | None = None,
 ) -> np.ndarray:
@@ -410,6 +467,11 @@ def correct_processed(
     applied after the gains (``ccm``, as in the tuning file's ``rpi.ccm``) is undone before unmixing
     and re-applied after it.
 
+    The image may come from any sensor mode, crop and zoom inside the calibration's sensor area: the ISP cropped the
+    sensor mode's image to the ScalerCrop (``crop``) and scaled it to the image's size, so each image pixel is mapped
+    to the sensor through the mode (its crop, binning and flips) and from there into the calibration's image (its
+    :attr:`~picamcal.calibration.Calibration.geometry`), where the fields are interpolated.
+
     Parameters
     ----------
     image : ProcessedImage or ndarray (H, W, 3)
@@ -423,11 +485,15 @@ def correct_processed(
     ccm : ndarray (3, 3), optional
         The colour matrix the ISP applied (camera RGB -> output RGB).
     crop : (x, y, width, height), optional
-        The part of the sensor, in sensor pixels, that the image shows; default the whole sensor
-        (the image may be scaled, as the ISP's output usually is).
+        The sensor area the image shows, in full-sensor pixels: picamera2's ``ScalerCrop`` metadata (libcamera's
+        ``ScalerCrop``, in the sensor mode's unflipped coordinates). Default: the sensor mode's whole crop. The image
+        may be scaled (the ISP's output usually is), but not stretched: its aspect ratio must be the area's.
+    sensor_mode : SensorMode, optional
+        The camera's sensor mode when the image was taken (:func:`picamcal.geometry.named_mode` gives a sensor's mode
+        by its size). Default: the calibration's own (:attr:`~picamcal.calibration.Calibration.geometry`).
     isp_gains : ndarray (H, W, 3), optional
         The lens shading gains the ISP applied, per image pixel (from a tuning file:
-        :func:`picamcal.export.isp.lens_shading_gains`). The residual between them and this
+        :func:`picamcal.export.isp.isp_gains_for_image`). The residual between them and this
         calibration's flat field is divided out, normalised at the centre so that the image keeps its
         brightness there, and without ``colour_gains`` its colour balance there too. Not used with ``white``,
         which went through the same gains (dividing by it removes them).
@@ -445,6 +511,15 @@ def correct_processed(
     -------
     ndarray of float32, shape (H, W, 3)
 
+    Raises
+    ------
+    PicamcalError
+        Not an RGB image; a crop outside the sensor, or of another aspect ratio than the image (the message names
+        ``--sensor-crop`` and ``--sensor-mode``).
+    CalibrationFileError
+        The image shows a sensor area outside the calibration's (the message says what covers it), or the sensor
+        mode is of another sensor; naming the image.
+
     Examples
     --------
     >>> from picamcal.simulate import make_camera, simulate_references, simulate_target
@@ -454,6 +529,9 @@ def correct_processed(
     >>> isp_output = correct(target, cal, "flat")  # stands for a camera whose lens shading came from ``cal``
     >>> correct_processed(isp_output[::2, ::2], cal, "centre").shape  # a scaled output: only U is left to do
     (120, 160, 3)
+    >>> zoom = correct_processed(isp_output[60:180, 80:240], cal, "centre", crop=(80, 60, 160, 120))  # a 2x zoom
+    >>> bool(np.allclose(zoom, correct_processed(isp_output, cal, "centre")[60:180, 80:240], atol=1e-4))
+    True
     """
     mode = choose_mode(calibration, mode)
     rgb = np.array(image.rgb if isinstance(image, ProcessedImage) else image, dtype=np.float32)
@@ -461,16 +539,7 @@ def correct_processed(
     if rgb.ndim != 3 or rgb.shape[-1] != 3:
         raise PicamcalError(f"expected an RGB image, got shape {rgb.shape}", source)
     height, width = rgb.shape[:2]
-    x0, y0, crop_w, crop_h = crop if crop is not None else (0, 0, calibration.width, calibration.height)
-    if x0 < 0 or y0 < 0 or x0 + crop_w > calibration.width or y0 + crop_h > calibration.height:
-        raise PicamcalError(f"crop {crop} lies outside the {calibration.width}x{calibration.height} sensor")
-    scale_x, scale_y = crop_w / width, crop_h / height
-    if abs(scale_x / scale_y - 1) > 0.02:
-        raise PicamcalError(
-            f"image is {width}x{height} but shows a {crop_w}x{crop_h} sensor area: the aspect ratios differ; "
-            "give the sensor crop it was taken with",
-            source,
-        )
+    (ax, bx), (ay, by) = _stream_on_calibration(calibration, (width, height), crop, sensor_mode, source)
     if ccm is not None:
         ccm = np.asarray(ccm, dtype=np.float64).reshape(3, 3)
         rgb = np.einsum("pq,yxq->yxp", np.linalg.inv(ccm).astype(np.float32), rgb)
@@ -480,23 +549,30 @@ def correct_processed(
             raise PicamcalError(f"white reference is {w.shape[1]}x{w.shape[0]}, the image {width}x{height}", source)
         if ccm is not None:
             w = np.einsum("pq,yxq->yxp", np.linalg.inv(ccm).astype(np.float32), w)
-        block = max(2, round(calibration.bin_size / scale_x))
+        block = max(2, round(calibration.bin_size / abs(ax)))
         means = block_mean(w, block)
         centres = bin_centres(height, block), bin_centres(width, block)
         if np.any(means <= 0):
             raise PicamcalError("the processed white reference has blocks with no light", source)
-        ay = interpolation_matrix(centres[0], np.arange(height))
-        ax = interpolation_matrix(centres[1], np.arange(width))
-        rgb /= upsample(means, ay, ax).astype(np.float32)
+        white_y = interpolation_matrix(centres[0], np.arange(height))
+        white_x = interpolation_matrix(centres[1], np.arange(width))
+        rgb /= upsample(means, white_y, white_x).astype(np.float32)
     cy, cx = calibration.bin_centres
-    image_centres = ((cy - y0 + 0.5) / scale_y - 0.5, (cx - x0 + 0.5) / scale_x - 0.5)
+    (centres_y, flip_y), (centres_x, flip_x) = _image_centres(cy, ay, by), _image_centres(cx, ax, bx)
+    image_centres = (centres_y, centres_x)
+
+    def oriented(field: np.ndarray) -> np.ndarray:
+        """A per-bin field in the image's orientation (mirrored where the image is against the calibration)."""
+        field = field[::-1] if flip_y else field
+        return field[:, ::-1] if flip_x else field
+
     if isp_gains is not None and isp_gains.shape != rgb.shape:
         raise PicamcalError(f"ISP gains of shape {isp_gains.shape} do not match the {width}x{height} image", source)
     # A processed white went through the same lens shading and colour gains: dividing by it removed them already.
     if isp_gains is not None and white is None:
-        ay = interpolation_matrix(image_centres[0], np.arange(height))
-        ax = interpolation_matrix(image_centres[1], np.arange(width))
-        residual = 1.0 / (upsample(calibration.white.astype(np.float64), ay, ax) * isp_gains)
+        residual_y = interpolation_matrix(image_centres[0], np.arange(height))
+        residual_x = interpolation_matrix(image_centres[1], np.arange(width))
+        residual = 1.0 / (upsample(oriented(calibration.white).astype(np.float64), residual_y, residual_x) * isp_gains)
         top, bottom, left, right = centre_region(height, width)  # the central ninth, in image pixels
         centre = residual[top:bottom, left:right].mean(axis=(0, 1))
         if colour_gains is not None:
@@ -509,7 +585,7 @@ def correct_processed(
         rgb *= (residual / centre).astype(np.float32)
     matrices = calibration.matrices(mode)
     if matrices is not None:
-        apply_matrix_field(rgb, matrices, image_centres)
+        apply_matrix_field(rgb, oriented(matrices), image_centres)
     if ccm is not None:
         rgb = np.einsum("pq,yxq->yxp", ccm.astype(np.float32), rgb)
     return rgb

@@ -22,8 +22,9 @@ from ..calibration import Calibration, load_calibration
 from ..calibration.resample import calibration_for_raw
 from ..correct import correct, correct_processed
 from ..errors import OutputError, PicamcalError, PicamcalWarning
-from ..export.isp import processed_inputs
+from ..export.isp import processed_geometry, processed_inputs
 from ..export.tuning import load_tuning
+from ..geometry import named_mode
 from ..kernels import fits
 from ..limits import SizeBound
 from ..modes import Mode
@@ -280,15 +281,25 @@ def frame_bound(cal: Calibration) -> SizeBound:
 
 
 def _correct_processed(image: ProcessedImage, cal: Calibration, settings: Settings) -> np.ndarray:
-    """correct_processed, with the ISP's lens shading and CCM taken from the tuning file the camera ran with."""
+    """correct_processed, with the ISP's lens shading and CCM taken from the tuning file the camera ran with.
+
+    Where the image lies on the sensor (:func:`picamcal.export.isp.processed_geometry`): ``--sensor-crop`` is the
+    sensor area the image shows (picamera2's ScalerCrop, full-sensor pixels), ``--sensor-mode`` the camera's sensor
+    mode (a mode of the calibration's sensor in the registry); what they leave out comes from the image's record
+    (``apply-tuning`` writes both), else the calibration's own mode and, for a mode that was said, libcamera's default
+    crop for the image's size, else the mode's whole crop."""
     white = None
     if settings.white is not None:
         white_path = settings.white
         white = _cached(("white", white_path, settings.decode), lambda: read_processed(white_path, settings.decode))
+    named = settings.geometry.get("sensor_mode")
+    mode = named_mode(cal.sensor, named) if named else None
+    sensor_mode, crop = processed_geometry(cal, image, crop=settings.geometry.get("sensor_crop"), sensor_mode=mode)
     if settings.tuning is None:
-        return correct_processed(image, cal, settings.mode, white=white)
+        return correct_processed(image, cal, settings.mode, white=white, crop=crop, sensor_mode=sensor_mode)
     tuning = _tuning(settings.tuning)
-    return correct_processed(image, cal, settings.mode, white=white, **processed_inputs(tuning, cal, image))
+    inputs = processed_inputs(tuning, cal, image, crop=crop, sensor_mode=sensor_mode)
+    return correct_processed(image, cal, settings.mode, white=white, **inputs)
 
 
 def _tuning(path: str) -> dict[str, Any]:

@@ -215,9 +215,10 @@ SensorCropOption = Annotated[
     str | None,
     typer.Option(
         "--sensor-crop",
-        help="X,Y,WIDTH,HEIGHT: the sensor area the raw frames were read from, in full-sensor pixels, for files "
-        "that do not say it (a mode picamcal's registry does not know). Default: what the file says, else the "
-        "sensor's mode of the frame's size, else the whole sensor.",
+        help="X,Y,WIDTH,HEIGHT in full-sensor pixels, for files that do not say it: the sensor area the raw frames "
+        "were read from (a mode picamcal's registry does not know); with --processed, the area the images show "
+        "(picamera2's ScalerCrop). Default: what the file says, else the sensor's mode of the frame's size, else the "
+        "whole sensor.",
         callback=_parse_sensor_crop,
     ),
 ]
@@ -225,8 +226,10 @@ SensorModeOption = Annotated[
     str | None,
     typer.Option(
         "--sensor-mode",
-        help="WIDTHxHEIGHT[:BITS]: the sensor's mode the raw frames come from (picamcal inspect lists a sensor's "
-        "modes); for files that do not say it.",
+        help="WIDTHxHEIGHT[:BITS]: the sensor's mode the frames come from (docs/sensor-modes.md lists each "
+        "sensor's), for files that do not say it; with --processed, the mode the camera ran in (its lens shading "
+        "is computed for it; the area shown is libcamera's default crop for the image's size unless --sensor-crop "
+        "gives it).",
         callback=_parse_sensor_mode,
     ),
 ]

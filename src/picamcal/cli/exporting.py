@@ -4,7 +4,6 @@
 # Annotations are not postponed (no `from __future__ import annotations`): typer reads every command's on each run,
 # and would evaluate them from strings each time.
 
-import math
 from pathlib import Path
 from typing import Annotated
 
@@ -21,6 +20,8 @@ from ._common import (
     RawFormatOption,
     RawSensorOption,
     RawSizeOption,
+    SensorCropOption,
+    SensorModeOption,
     StrideOption,
     app,
     check_output,
@@ -179,11 +180,14 @@ def apply_tuning_cmd(
             "neutral, else the image's, else 1,1)."
         ),
     ] = None,
-    sensor_crop: Annotated[
-        str | None, typer.Option(help="X,Y,WIDTH,HEIGHT of the sensor mode's crop, in full-sensor pixels.")
-    ] = None,
+    sensor_crop: SensorCropOption = None,
+    sensor_mode: SensorModeOption = None,
     sensor_size: Annotated[
-        str | None, typer.Option(help="Full sensor WIDTHxHEIGHT (default: the sensor registry's, or the image's).")
+        str | None,
+        typer.Option(
+            help="Full sensor WIDTHxHEIGHT, for a raw image of a sensor picamcal does not know (default: what the "
+            "file says, else the sensor registry's, else the image's)."
+        ),
     ] = None,
     ct: Annotated[
         float | None,
@@ -198,12 +202,18 @@ def apply_tuning_cmd(
     raw_sensor: RawSensorOption = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
-    """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC."""
+    """Apply a tuning file's black level, static lens shading, colour gains (and CCM) to a raw image on a PC.
+
+    The lens shading is computed for the raw image's sensor mode (--sensor-crop or --sensor-mode where the file does
+    not say it), as libcamera does; the output (the mode's whole image, as the ISP gives it before any ScalerCrop)
+    records that mode and its area, which correct --processed reads.
+    """
     import numpy as np
 
     from ..export.isp import applied_colour_gains, apply_tuning, full_sensor_size, mode_for_image
     from ..export.tuning import load_tuning
     from ..output import NO_MATRIX, ColourMatrix, is_picamcal_output, write_corrected
+    from ..raw.model import raw_geometry
 
     # An input given as the output is the worse mistake: said first, whatever the suffix.
     check_output(out, overwrite, is_picamcal_output, "an image picamcal wrote", [image, tuning_file])
@@ -220,21 +230,19 @@ def apply_tuning_cmd(
             f"{colour_gains!r}: each gain must be more than 0 and at most {MAX_COLOUR_GAIN} (libcamera's range)",
             param_hint="--colour-gains",
         )
-    crop = parse_numbers(sensor_crop, 4, "--sensor-crop")
-    if crop is not None and not (
-        all(math.isfinite(v) and v == int(v) for v in crop) and min(crop[:2]) >= 0 and min(crop[2:]) > 0
-    ):
-        raise typer.BadParameter(
-            f"{sensor_crop!r}: X and Y must be whole numbers, 0 or more, and WIDTH and HEIGHT whole numbers above 0",
-            param_hint="--sensor-crop",
-        )
+    crop_box: tuple[int, int, int, int] | None = sensor_crop  # type: ignore[assignment]  # the option's callback parsed it
     given_size = parse_size(sensor_size, "--sensor-size")
     tuning = load_tuning(tuning_file)
     headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
     raw = reader(pattern, black_level, **headless)(image)
-    full = given_size or full_sensor_size(raw)
-    crop_box = (int(crop[0]), int(crop[1]), int(crop[2]), int(crop[3])) if crop else None
-    mode = mode_for_image(full, (raw.width, raw.height), crop_box)
+    image_size = (raw.width, raw.height)
+    if given_size is not None:
+        mode = mode_for_image(given_size, image_size, crop_box)
+    else:
+        mode = raw_geometry(raw, sensor_crop=crop_box, sensor_mode=sensor_mode)
+        if mode.source == "assumed" and mode.sensor_size != full_sensor_size(raw):
+            # A size no mode of its sensor gives: refused, saying what to give.
+            mode = mode_for_image(full_sensor_size(raw), image_size)
     # The gains applied: those given, else those an exported file records as making its white neutral, else the
     # raw's; recorded so that `correct --processed --tuning` divides out these very ones.
     applied = applied_colour_gains(raw, (gains[0], gains[1]) if gains else None, tuning)
@@ -244,7 +252,14 @@ def apply_tuning_cmd(
         if exc.path is None:  # a problem with the tuning's content: the tuning dict does not know its file
             raise type(exc)(exc.problem, tuning_file) from None
         raise
-    info = {"source": image.name, "tuning": tuning_file.name, "ccm": ccm, "colour_gains": list(applied)}
+    info = {
+        "source": image.name,
+        "tuning": tuning_file.name,
+        "ccm": ccm,
+        "colour_gains": list(applied),
+        "sensor_mode": mode.to_record(),
+        "scaler_crop": list(mode.crop),
+    }
     # The sRGB files show the emulated ISP's output as it is: the sensor's white level at sRGB's, no other matrix.
     matrix = ColourMatrix(np.eye(3), f"{tuning_file.name} rpi.ccm, applied by apply-tuning" if ccm else NO_MATRIX)
     write_corrected(out, rgb, output_format, info, colour_matrix=matrix, white_level=1.0, overwrite=overwrite)

@@ -30,7 +30,7 @@ import numpy as np
 from ..bayer import central_half, sites_to_channels
 from ..calibration import Calibration
 from ..errors import PicamcalError
-from ..geometry import SensorMode, mode_for_image
+from ..geometry import Box, SensorMode, mode_for_image, registry_mode
 from ..raw.model import RawImage, site_channels
 from ..raw.processed import ProcessedImage
 from ..sensors import LSC_GRIDS, SENSORS
@@ -118,14 +118,17 @@ def hardware_grid(target: str, width: int, height: int) -> tuple[tuple[int, int]
     return (cols + 1, rows + 1), (width / cols, height / rows)
 
 
-def _grid_to_pixels(n_grid: int, spacing: float, n_pixels: int) -> np.ndarray:
-    """Bilinear interpolation matrix (n_pixels x n_grid) from grid points at ``k * spacing`` to pixels."""
-    position = np.arange(n_pixels) / spacing
+def _grid_to_pixels(n_grid: int, spacing: float, positions: int | np.ndarray) -> np.ndarray:
+    """Bilinear interpolation matrix (pixels x n_grid) from grid points at ``k * spacing`` to pixel positions
+    (``positions``, pixel centres at integers, or ``n`` for the pixels ``0 .. n - 1``), clamped to the grid."""
+    pixels = np.arange(positions) if isinstance(positions, int) else np.asarray(positions, dtype=float)
+    position = pixels / spacing
     lo = np.clip(np.floor(position).astype(int), 0, n_grid - 2)
     frac = np.clip(position - lo, 0.0, 1.0)
-    matrix = np.zeros((n_pixels, n_grid))
-    matrix[np.arange(n_pixels), lo] = 1 - frac
-    matrix[np.arange(n_pixels), lo + 1] += frac
+    rows = np.arange(pixels.size)
+    matrix = np.zeros((pixels.size, n_grid))
+    matrix[rows, lo] = 1 - frac
+    matrix[rows, lo + 1] += frac
     return matrix
 
 
@@ -245,6 +248,15 @@ def channel_tables(tuning: dict[str, Any], mode: SensorMode, ct: float | None = 
     return np.stack([cr / cr.min() * lum, lum, cb / cb.min() * lum])
 
 
+def _hardware_tables(tuning: dict[str, Any], mode: SensorMode, ct: float | None) -> tuple[str, np.ndarray]:
+    """The target and the corner-sampled R, G, B grids (3, rows, cols) the hardware receives for a mode, in its fixed
+    point."""
+    target = tuning.get("target", "bcm2835")
+    tables = channel_tables(tuning, mode, ct)
+    cy, cx, _, _ = _grid_matrices(target, mode.width, mode.height)
+    return target, _quantise(np.stack([cy @ t @ cx.T for t in tables]), target)
+
+
 def lens_shading_gains(
     tuning: dict[str, Any], width: int, height: int, *, mode: SensorMode | None = None, ct: float | None = None
 ) -> np.ndarray:
@@ -268,41 +280,158 @@ def lens_shading_gains(
     >>> gains.shape, bool(gains[120, 160, 1] < gains[0, 0, 1])  # more gain in the corners
     ((240, 320, 3), True)
     """
-    target = tuning.get("target", "bcm2835")
     mode = mode or SensorMode.full(width, height)
-    tables = channel_tables(tuning, mode, ct)
-    cy, cx, gy, gx = _grid_matrices(target, width, height)
-    # The hardware receives the corner-sampled grid in fixed point.
-    corners = _quantise(np.stack([cy @ t @ cx.T for t in tables]), target)
+    target, corners = _hardware_tables(tuning, mode, ct)
+    _, _, gy, gx = _grid_matrices(target, width, height)
     return np.stack([gy @ c @ gx.T for c in corners], axis=-1).astype(np.float32)
+
+
+def check_scaler_crop(mode: SensorMode, scaler_crop: Box, what: str = "ScalerCrop") -> Box:
+    """``scaler_crop`` as four whole numbers, checked to lie inside the sensor mode's crop (a stream shows only what
+    its mode reads: libcamera encloses the ISP's crop in the mode's image, ``applyScalerCrop`` in
+    ``src/libcamera/pipeline/rpi/common/pipeline_base.cpp``).
+
+    Raises
+    ------
+    PicamcalError
+        Not four numbers, an empty area, or an area outside the sensor or the mode's crop; one line naming ``what``.
+
+    Examples
+    --------
+    >>> binned = SensorMode.full(3280, 2464, binning=2)
+    >>> check_scaler_crop(binned, (820, 616, 1640, 1232))  # a 2x zoom
+    (820, 616, 1640, 1232)
+    >>> check_scaler_crop(SensorMode(3280, 2464, (680, 692, 1920, 1080)), (0, 0, 3280, 2464))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: ScalerCrop 0,0,3280,2464 lies outside the sensor mode's crop (the 1920x1080 area \
+at (680, 692) of the 3280x2464 sensor): a stream shows only what its mode reads
+    """
+    try:
+        x, y, w, h = (int(v) for v in scaler_crop)
+    except (TypeError, ValueError):
+        raise PicamcalError(f"{what} {scaler_crop!r} is not X,Y,WIDTH,HEIGHT in full-sensor pixels") from None
+    if (x, y, w, h) != tuple(scaler_crop) or w < 1 or h < 1:
+        raise PicamcalError(f"{what} {scaler_crop!r} is not X,Y,WIDTH,HEIGHT in whole full-sensor pixels")
+    sensor_w, sensor_h = mode.sensor_size
+    if x < 0 or y < 0 or x + w > sensor_w or y + h > sensor_h:
+        raise PicamcalError(f"{what} {x},{y},{w},{h} lies outside the {sensor_w}x{sensor_h} sensor")
+    if not mode.contains((x, y, w, h)):
+        cx, cy, cw, ch = mode.crop
+        raise PicamcalError(
+            f"{what} {x},{y},{w},{h} lies outside the sensor mode's crop (the {cw}x{ch} area at ({cx}, {cy}) of the "
+            f"{sensor_w}x{sensor_h} sensor): a stream shows only what its mode reads"
+        )
+    return x, y, w, h
+
+
+def default_scaler_crop(mode: SensorMode, size: tuple[int, int]) -> Box:
+    """The ScalerCrop libcamera gives a stream of ``size`` from ``mode`` until one is set: the largest area of the
+    stream's aspect ratio centred in the mode's image, in full-sensor pixels.
+
+    The Raspberry Pi pipeline's ``platformConfigure`` (``src/libcamera/pipeline/rpi/vc4/vc4.cpp``,
+    ``pisp/pisp.cpp``): ``Size::boundedToAspectRatio`` of the mode's output size, ``centeredTo`` its centre, and
+    ``scaleIspCrop`` to the sensor's pixels, in libcamera's integer arithmetic.
+
+    Examples
+    --------
+    >>> binned = SensorMode.full(3280, 2464, binning=2)
+    >>> default_scaler_crop(binned, (1640, 1232)), default_scaler_crop(binned, (1920, 1080))  # 4:3 and 16:9
+    ((0, 0, 3280, 2464), (0, 310, 3280, 1844))
+    """
+    width, height = size
+    out_w, out_h = mode.width, mode.height
+    wide, tall = out_w * height, width * out_h
+    w, h = (tall // height, out_h) if wide > tall else (out_w, wide // width)
+    x, y = out_w // 2 - w // 2, out_h // 2 - h // 2
+    cx, cy, cw, ch = mode.crop
+    return x * cw // out_w + cx, y * ch // out_h + cy, w * cw // out_w, h * ch // out_h
+
+
+def stream_positions(mode: SensorMode, size: tuple[int, int], scaler_crop: Box | None = None) -> tuple[np.ndarray, ...]:
+    """Where each row and column of a processed stream lies in its sensor mode's image (pixel centres at integers).
+
+    The ISP crops the mode's image to the ScalerCrop (libcamera's ``ispCrop``: the ScalerCrop translated to the mode's
+    crop and scaled by the mode's output size over the crop's, ``applyScalerCrop``) and scales that to the stream's
+    size, so stream pixel ``i`` (spanning ``[i, i + 1)``) is centred at ``x0 + (i + 0.5) w / W - 0.5`` of the mode's
+    image. Mode flips mirror the mode's image inside its crop, not this map (libcamera takes the ScalerCrop as it is).
+
+    Returns
+    -------
+    rows, columns : ndarray of float64
+
+    Examples
+    --------
+    >>> rows, cols = stream_positions(SensorMode.full(3280, 2464, binning=2), (410, 308), (820, 616, 1640, 1232))
+    >>> float(cols[0]), float(cols[-1])  # a 2x zoom, scaled by half: every other column of the mode's centre half
+    (410.5, 1228.5)
+    """
+    x, y, w, h = mode.crop if scaler_crop is None else check_scaler_crop(mode, scaler_crop)
+    cx, cy, cw, ch = mode.crop
+    sx, sy = mode.width / cw, mode.height / ch  # the mode's pixels per sensor pixel (1 / binning)
+    width, height = size
+    cols = (x - cx) * sx + (np.arange(width) + 0.5) * w * sx / width - 0.5
+    rows = (y - cy) * sy + (np.arange(height) + 0.5) * h * sy / height - 0.5
+    return rows, cols
 
 
 def isp_gains_for_image(
     tuning: dict[str, Any],
-    sensor_size: tuple[int, int],
+    mode: SensorMode | tuple[int, int],
     image_size: tuple[int, int],
     *,
-    crop: tuple[int, int, int, int] | None = None,
+    scaler_crop: Box | None = None,
     ct: float | None = None,
 ) -> np.ndarray:
-    """Lens shading gains at the pixels of a processed image, shape (height, width, 3).
+    """Lens shading gains at the pixels of a processed stream, shape (height, width, 3).
 
-    The ISP applies the gains at the sensor mode's resolution and then scales its output; the gains
-    are smooth, so they are computed for the mode (the full sensor, or ``crop``) and resampled to the image.
+    libcamera computes the lens shading tables for the sensor mode (its crop, binning and flips: ``resampleCalTable``
+    in ``src/ipa/rpi/controller/rpi/alsc.cpp``), the ISP applies them to the mode's image, and only then crops it to
+    the ScalerCrop and scales it to the stream's size. So the gains at a stream's pixels are the mode's gains
+    (:func:`lens_shading_gains`, as the hardware interpolates its grid) taken where each pixel lies in the mode's
+    image (:func:`stream_positions`); the gains are smooth, so a pixel takes the grid's value at its centre.
+
+    Parameters
+    ----------
+    tuning : dict
+        A version 2 tuning file (the one the camera runs with).
+    mode : SensorMode or (width, height)
+        The camera's sensor mode (picamera2's configured sensor mode; :func:`picamcal.geometry.named_mode`); a
+        (width, height) is a sensor of that size read whole, unbinned.
+    image_size : (width, height)
+        The stream's size.
+    scaler_crop : (x, y, width, height), optional
+        The sensor area the stream shows, in full-sensor pixels (picamera2's ``ScalerCrop`` metadata); default the
+        mode's whole crop.
+    ct : float, optional
+        Colour temperature of the tables (default the file's ``default_ct``).
+
+    Raises
+    ------
+    PicamcalError
+        A ScalerCrop outside the mode's crop (:func:`check_scaler_crop`); a tuning without ``rpi.alsc``.
 
     Examples
     --------
     >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
     >>> tuning = load_tuning(stock_tuning_path("imx219", "pisp"))
-    >>> isp_gains_for_image(tuning, (640, 480), (320, 240)).shape  # a half-size output of the full sensor
+    >>> binned = SensorMode.full(3280, 2464, binning=2)
+    >>> isp_gains_for_image(tuning, binned, (320, 240)).shape  # a small output of the 2 x 2 binned mode
     (240, 320, 3)
+    >>> whole = isp_gains_for_image(tuning, binned, (320, 240))
+    >>> zoom = isp_gains_for_image(tuning, binned, (320, 240), scaler_crop=(820, 616, 1640, 1232))  # 2x zoom
+    >>> bool(abs(zoom[0, 0, 1] - whole[60, 80, 1]) < 0.01)  # the zoom's corner is the whole field's quarter point
+    True
     """
-    mode = SensorMode(*sensor_size, crop or (0, 0, *sensor_size))
-    gains = lens_shading_gains(tuning, mode.width, mode.height, mode=mode, ct=ct)
-    width, height = image_size
-    ys = np.clip(np.round((np.arange(height) + 0.5) * mode.height / height - 0.5).astype(int), 0, mode.height - 1)
-    xs = np.clip(np.round((np.arange(width) + 0.5) * mode.width / width - 0.5).astype(int), 0, mode.width - 1)
-    return gains[ys][:, xs]
+    if not isinstance(mode, SensorMode):
+        mode = SensorMode.full(int(mode[0]), int(mode[1]))
+    target, corners = _hardware_tables(tuning, mode, ct)
+    (gw, gh), (spacing_x, spacing_y) = hardware_grid(target, mode.width, mode.height)
+    rows, cols = stream_positions(mode, image_size, scaler_crop)
+    # The hardware's grid holds for the mode's pixels 0 .. n - 1: a position beyond them takes the edge pixel's gain.
+    gy = _grid_to_pixels(gh, spacing_y, np.clip(rows, 0, mode.height - 1))
+    gx = _grid_to_pixels(gw, spacing_x, np.clip(cols, 0, mode.width - 1))
+    return np.stack([gy @ c @ gx.T for c in corners], axis=-1).astype(np.float32)
 
 
 def tuning_black_level(tuning: dict[str, Any], bit_depth: int) -> float | None:
@@ -439,7 +568,8 @@ class ProcessedInputs(TypedDict):
     ccm: np.ndarray | None
     isp_gains: np.ndarray
     colour_gains: tuple[float, float] | None
-    crop: tuple[int, int, int, int] | None
+    crop: Box | None
+    sensor_mode: SensorMode | None
 
 
 def calibration_colour_gains(calibration: Calibration) -> tuple[float, float]:
@@ -467,23 +597,120 @@ def calibration_colour_gains(calibration: Calibration) -> tuple[float, float]:
     return float(green / red), float(green / blue)
 
 
+def _recorded_geometry(metadata: Mapping[str, Any], source: str) -> tuple[SensorMode | None, Box | None]:
+    """The sensor mode and ScalerCrop a processed image's metadata records (picamcal's record first, as
+    ``apply-tuning`` writes it), or None for each it does not."""
+    record = metadata.get("picamcal")
+    record = record if isinstance(record, Mapping) else {}
+    mode_record = record.get("sensor_mode", metadata.get("sensor_mode"))
+    crop = record.get("scaler_crop", metadata.get("scaler_crop"))
+    mode = None
+    if mode_record is not None:
+        try:
+            mode = SensorMode.from_record(mode_record)
+        except (KeyError, TypeError, ValueError, PicamcalError) as exc:
+            problem = exc.problem if isinstance(exc, PicamcalError) else f"{type(exc).__name__}: {exc}"
+            raise PicamcalError(f"its recorded sensor_mode is not a sensor mode ({problem})", source) from None
+    if crop is not None:
+        if not isinstance(crop, (list, tuple)) or len(crop) != 4 or not all(isinstance(v, int) for v in crop):
+            raise PicamcalError(f"its recorded scaler_crop {crop!r} is not X,Y,WIDTH,HEIGHT in whole pixels", source)
+        crop = (crop[0], crop[1], crop[2], crop[3])
+    return mode, crop
+
+
+def _refuse_a_cropped_modes_size(
+    calibration: Calibration, mode: SensorMode, size: tuple[int, int], source: str
+) -> None:
+    """An image that nothing places, of the very size of a cropped mode of the calibration's sensor (imx219's
+    640x480, imx477's 1332x990) other than the calibration's own: it may show that mode's area or the whole
+    calibration's, scaled, and taking the wrong one is silently wrong (corners at 0.44 of the centre). Refused."""
+    candidate = registry_mode(calibration.sensor, *size)
+    if candidate is None or candidate.is_full or candidate.sensor_size != mode.sensor_size:
+        return
+    if candidate.area() == mode.area():
+        return
+    x, y, w, h = candidate.crop
+    raise PicamcalError(
+        f"a {size[0]}x{size[1]} image may come from the {calibration.sensor}'s {size[0]}x{size[1]} mode (the {w}x{h} "
+        f"area at ({x}, {y})) or show the calibration's whole area, scaled: say which with --sensor-mode "
+        f"{size[0]}x{size[1]}, or --sensor-crop X,Y,WIDTH,HEIGHT (the sensor area it shows: picamera2's ScalerCrop)",
+        source,
+    )
+
+
+def processed_geometry(
+    calibration: Calibration,
+    image: ProcessedImage | np.ndarray,
+    *,
+    crop: Box | None = None,
+    sensor_mode: SensorMode | None = None,
+) -> tuple[SensorMode, Box]:
+    """The camera's sensor mode and the sensor area (ScalerCrop) a processed image shows.
+
+    A processed image is the ISP's output: the sensor mode's image, lens-shaded for the mode, cropped to the
+    ScalerCrop and scaled to the stream's size (:func:`isp_gains_for_image`). Its size says neither, so they come from,
+    in this order:
+
+    1. ``sensor_mode`` and ``crop``, the user's word (``correct --processed --sensor-mode``, ``--sensor-crop``);
+    2. the image's record (``metadata["picamcal"]`` ``sensor_mode`` and ``scaler_crop``: what ``picamcal
+       apply-tuning`` writes in its TIFF; or the same keys in ``metadata``);
+    3. the mode: the calibration's own (its :attr:`~picamcal.calibration.Calibration.geometry`); the area: for a
+       mode given or recorded, the ScalerCrop libcamera gives a stream of the image's size (:func:`default_scaler_crop`,
+       the mode's whole crop when the aspect ratios agree), else the mode's whole crop (an image of another aspect
+       ratio is then refused by :func:`picamcal.correct.correct_processed`, naming the options).
+
+    Raises
+    ------
+    PicamcalError
+        A crop outside the sensor or the mode's crop (:func:`check_scaler_crop`), or a damaged record; naming the image.
+
+    Examples
+    --------
+    >>> from picamcal.geometry import named_mode
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
+    >>> processed_geometry(cal, np.zeros((120, 160, 3)))[1]  # nothing says: the calibration's whole area
+    (0, 0, 320, 240)
+    >>> mode, crop = processed_geometry(cal, np.zeros((90, 160, 3)), sensor_mode=SensorMode.full(320, 240))
+    >>> crop  # a 16:9 stream of a 4:3 mode: libcamera's default crop, centred
+    (0, 30, 320, 180)
+    """
+    metadata = image.metadata if isinstance(image, ProcessedImage) else {}
+    source = str(metadata.get("path", "<image>"))
+    height, width = image.rgb.shape[:2] if isinstance(image, ProcessedImage) else np.shape(image)[:2]
+    recorded_mode, recorded_crop = _recorded_geometry(metadata, source)
+    what = "--sensor-crop" if crop is not None else "the recorded scaler_crop" if recorded_crop else "the ScalerCrop"
+    said = sensor_mode or recorded_mode
+    mode = said or calibration.geometry or SensorMode.full(calibration.width, calibration.height)
+    area = crop or recorded_crop
+    if said is None and area is None:
+        _refuse_a_cropped_modes_size(calibration, mode, (int(width), int(height)), source)
+    if area is None:
+        area = default_scaler_crop(mode, (int(width), int(height))) if said is not None else mode.crop
+    try:
+        return mode, check_scaler_crop(mode, area, what)
+    except PicamcalError as exc:
+        raise PicamcalError(exc.problem, source) from None
+
+
 def processed_inputs(
     tuning: dict[str, Any],
     calibration: Calibration,
     image: ProcessedImage | np.ndarray,
     *,
     ct: float | None = None,
-    crop: tuple[int, int, int, int] | None = None,
+    crop: Box | None = None,
+    sensor_mode: SensorMode | None = None,
     colour_gains: tuple[float, float] | None = None,
 ) -> ProcessedInputs:
     """What the camera's ISP did to a processed image, from the tuning file it ran with, for ``correct_processed``.
 
-    The ISP applied the tuning file's static lens shading (``rpi.alsc``, emulated by
-    :func:`isp_gains_for_image` on the calibration's sensor, resampled to the image), the camera's colour gains
-    and then its colour matrix (``rpi.ccm``), the tables at the colour temperature ``ct``.
-    :func:`picamcal.correct.correct_processed` divides out the lens shading and colour gains with the
-    calibration's flat field (so the white is neutral where the unmixing acts, as on the raw path), and undoes
-    and re-applies the matrix around the unmixing:
+    The ISP applied the tuning file's static lens shading (``rpi.alsc``) for the camera's sensor mode, cropped and
+    scaled its image to the stream (:func:`isp_gains_for_image` gives the gains at the stream's pixels), the camera's
+    colour gains and then its colour matrix (``rpi.ccm``), the tables at the colour temperature ``ct``.
+    :func:`picamcal.correct.correct_processed` maps the stream onto the calibration's sensor area, divides out the
+    lens shading and colour gains with the calibration's flat field (so the white is neutral where the unmixing
+    acts, as on the raw path), and undoes and re-applies the matrix around the unmixing:
     ``correct_processed(image, cal, mode, **processed_inputs(tuning, cal, image))``, what
     ``picamcal correct --processed --tuning FILE`` does for each image.
 
@@ -498,13 +725,18 @@ def processed_inputs(
     tuning : dict
         The libcamera tuning file the camera ran with (:func:`picamcal.export.tuning.load_tuning`).
     calibration : Calibration
-        The calibration the image is corrected with: its size is the sensor's (the mode the ISP read).
+        The calibration the image is corrected with.
     image : ProcessedImage or ndarray (H, W, 3)
-        The processed image (only its size is used: the ISP scales its output).
+        The processed image (its size and its record are used: the ISP scales its output).
     ct : float, optional
         Colour temperature in kelvin; default the tuning file's (:func:`default_ct`).
     crop : (x, y, width, height), optional
-        The sensor area the image shows, in sensor pixels; default the whole sensor.
+        The sensor area the image shows, in full-sensor pixels: picamera2's ``ScalerCrop`` metadata of the capture.
+        Default: the image's record, else as :func:`processed_geometry` says.
+    sensor_mode : SensorMode, optional
+        The camera's sensor mode (its crop, binning and flips; :func:`picamcal.geometry.named_mode` gives a sensor's
+        mode by its size): libcamera computes the lens shading tables for it. Default: the image's record, else the
+        calibration's own mode.
     colour_gains : (red, blue), optional
         The white balance gains the camera applied (Picamera2's ``ColourGains`` metadata). Default: the image's
         ``metadata["colour_gains"]`` if it has them (``picamcal apply-tuning`` records those it applied); else, for
@@ -519,12 +751,12 @@ def processed_inputs(
     ProcessedInputs
         ``ccm`` (3 x 3; None if the file has no ``rpi.ccm``, or if the image is ``picamcal apply-tuning``'s
         output made without ``--ccm``, as its ``metadata["picamcal"]["ccm"]`` records), ``isp_gains``
-        (H, W, 3), ``colour_gains`` and ``crop``.
+        (H, W, 3), ``colour_gains``, ``crop`` and ``sensor_mode`` (those of :func:`processed_geometry`).
 
     Raises
     ------
     PicamcalError
-        The tuning file has no ``rpi.alsc`` section.
+        The tuning file has no ``rpi.alsc`` section; a crop outside the sensor or the mode's crop.
 
     Examples
     --------
@@ -536,15 +768,15 @@ def processed_inputs(
     >>> tuning = load_tuning(stock_tuning_path("imx219", "pisp"))
     >>> image = np.full((120, 160, 3), 0.25, np.float32)  # a half-size ISP output
     >>> inputs = processed_inputs(tuning, cal, image)
-    >>> inputs["isp_gains"].shape, inputs["ccm"].shape
-    ((120, 160, 3), (3, 3))
+    >>> inputs["isp_gains"].shape, inputs["ccm"].shape, inputs["crop"]
+    ((120, 160, 3), (3, 3), (0, 0, 320, 240))
     >>> correct_processed(image, cal, "centre", **inputs).shape
     (120, 160, 3)
     """
     height, width = image.rgb.shape[:2] if isinstance(image, ProcessedImage) else np.shape(image)[:2]
     ct = default_ct(tuning) if ct is None else float(ct)
-    sensor = (calibration.width, calibration.height)
-    gains = isp_gains_for_image(tuning, sensor, (int(width), int(height)), crop=crop, ct=ct)
+    mode, area = processed_geometry(calibration, image, crop=crop, sensor_mode=sensor_mode)
+    gains = isp_gains_for_image(tuning, mode, (int(width), int(height)), scaler_crop=area, ct=ct)
     metadata = image.metadata if isinstance(image, ProcessedImage) else {}
     record = metadata.get("picamcal", {})  # apply-tuning's output says what the emulated ISP did
     if colour_gains is None and metadata.get("colour_gains"):
@@ -557,5 +789,6 @@ def processed_inputs(
         "ccm": tuning_ccm(tuning, ct) if applied_ccm else None,
         "isp_gains": gains,
         "colour_gains": None if colour_gains is None else (float(colour_gains[0]), float(colour_gains[1])),
-        "crop": crop,
+        "crop": area,
+        "sensor_mode": mode,
     }

@@ -16,6 +16,7 @@ from .buffer import check_layout, decode
 from .formats import UNICAM_ALIGN, RawFormat
 from .metadata import (
     SENSOR_BLACK_LEVEL_SITES,
+    active_area_size,
     black_levels,
     exposure_metadata,
     geometry_metadata,
@@ -45,7 +46,7 @@ def from_picamera2(
         (``{"format": "SBGGR10_CSI2P", "size": (width, height), "stride": ..., "framesize": ...}``), or the whole
         camera configuration with ``"raw"`` and ``"sensor"`` (``{"bit_depth": 10, ...}``) keys. A ``"model"`` key
         (picamera2's ``camera_properties["Model"]``, e.g. ``"imx708_wide"``) names the sensor; ``"crop_limits"``
-        and ``"pixel_array_size"`` place the mode on the sensor (:func:`~.metadata.geometry_metadata`).
+        and ``"pixel_array_size"`` place the mode on the sensor (``geometry_metadata``).
     metadata : mapping, optional
         The request metadata (``request.get_metadata()``). ``SensorBlackLevels`` (R, Gr, Gb, B on a 16-bit
         scale, 4096 = 64 at 10 bits) gives the black level of each 2x2 site; ``ExposureTime`` (µs),
@@ -209,10 +210,11 @@ def capture_raw(picam2: Any, *, sensor: str | None = None) -> RawImage:
     if model is not None:
         config["model"] = model
     # Where the mode lies on the sensor: the largest ScalerCrop of the configured mode is its crop (picamera2's
-    # sensor_modes call it crop_limits), on the pixel array whose size the camera's properties give.
+    # sensor_modes call it crop_limits), on the sensor's active area.
     scaler_crop = picam2.camera_controls.get("ScalerCrop")
-    if scaler_crop is not None and "PixelArraySize" in picam2.camera_properties:
-        config["crop_limits"], config["pixel_array_size"] = scaler_crop[1], picam2.camera_properties["PixelArraySize"]
+    active = active_area_size(picam2.camera_properties)
+    if scaler_crop is not None and active is not None:
+        config["crop_limits"], config["pixel_array_size"] = scaler_crop[1], active
     request = picam2.capture_request()
     try:  # decoded before the buffer goes back to the camera, in case the array shares its memory
         return from_picamera2(

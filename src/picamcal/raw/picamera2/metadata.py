@@ -148,6 +148,20 @@ def resolve_sensor(
     return None, None
 
 
+def active_area_size(properties: Mapping[str, Any]) -> Any:
+    """The sensor's active area (width, height) from picamera2's ``camera_properties``: what a mode's crop and
+    ``ScalerCrop`` are measured in (libcamera's ``CameraSensorRaw::sensorInfo`` subtracts its offset;
+    ``control_ids_core.yaml``), ``PixelArrayActiveAreas[0]``, else ``PixelArraySize``; None when neither is given.
+
+    Examples
+    --------
+    >>> active_area_size({"PixelArraySize": (3296, 2480), "PixelArrayActiveAreas": [(8, 8, 3280, 2464)]})
+    (3280, 2464)
+    """
+    areas = properties.get("PixelArrayActiveAreas")
+    return tuple(areas[0][2:]) if areas else properties.get("PixelArraySize")
+
+
 def _box(value: Any, what: str, source: str) -> list[int]:
     """A libcamera ``Rectangle`` as picamera2 gives it, ``(x, y, width, height)``, checked."""
     if hasattr(value, "width") and hasattr(value, "x"):  # a libcamera Rectangle itself
@@ -164,7 +178,7 @@ def geometry_metadata(config: Mapping[str, Any], metadata: Mapping[str, Any], so
     """Where the frame lies on the sensor, as the camera says it, for ``RawImage.metadata``.
 
     From what :func:`picamcal.raw.picamera2.capture_raw` adds to the configuration beside picamera2's own keys:
-    ``pixel_array_size`` (``camera_properties["PixelArraySize"]``) and ``crop_limits`` (the mode's area of the
+    ``pixel_array_size`` (the active area, :func:`active_area_size`) and ``crop_limits`` (the mode's area of the
     sensor, the largest ``ScalerCrop``, as picamera2's ``sensor_modes`` give it), and the configuration's
     ``transform`` (its ``hflip`` and ``vflip``); the request's ``ScalerCrop`` (the area the processed streams show)
     is kept as ``scaler_crop``. Nothing when the configuration has no crop.
@@ -181,8 +195,8 @@ def geometry_metadata(config: Mapping[str, Any], metadata: Mapping[str, Any], so
         if hasattr(array, "width"):  # a libcamera Size
             array = (array.width, array.height)
         if not isinstance(array, (list, tuple)) or len(array) != 2:
-            raise RawFormatError(f"PixelArraySize must be (width, height), not {short(array)}", source)
-        meta["sensor_size"] = [integer(v, "PixelArraySize", source, 1, 1 << 16) for v in array]
+            raise RawFormatError(f"the pixel array's size must be (width, height), not {short(array)}", source)
+        meta["sensor_size"] = [integer(v, "the pixel array's size", source, 1, 1 << 16) for v in array]
         meta["sensor_crop"] = _box(limits, "the mode's crop limits", source)
         transform = config.get("transform")
         meta["sensor_flips"] = [bool(getattr(transform, "hflip", False)), bool(getattr(transform, "vflip", False))]
