@@ -59,6 +59,7 @@ def test_a_mode_is_cropped_when_it_reads_part_of_the_sensor():
 
 
 def cli_error(args: list[str], monkeypatch, capfd) -> str:
+    """The one error line of a command refused before any work, run in this process."""
     monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)
     with pytest.raises(SystemExit) as exit:
         main(args)

@@ -14,7 +14,6 @@ import importlib.util
 import json
 import subprocess
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -29,9 +28,9 @@ from picamcal.acquire.verify import (
     shading_figures,
 )
 from picamcal.bayer import bin_sites, sites_to_channels
-from picamcal.cli import main
 from picamcal.export.tuning import load_tuning, neutral_tuning, stock_tuning_path
 from picamcal.simulate import make_camera, render
+from test_acquire_modes import cli_error
 from test_virtualcam_picamera2 import under_virtual_camera
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -130,17 +129,6 @@ def test_the_colour_gains_are_the_modes_then_the_calibrations_then_the_auto_whit
     assert mode_colour_gains({}, "1920x1080:10") == (None, "auto white balance")
     for broken in ({"colour_gains": [1.5]}, {"colour_gains": [0, 1]}, {"colour_gains": "1.5,1.2"}, []):
         assert mode_colour_gains({"picamcal": broken}, "1920x1080:10") == (None, "auto white balance")
-
-
-def cli_error(args: list[str], monkeypatch, capfd) -> str:
-    """The one error line of a command refused before any work, run in this process."""
-    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)
-    with pytest.raises(SystemExit) as exit:
-        main(args)
-    assert exit.value.code == 2
-    lines = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
-    assert len(lines) == 1, lines
-    return lines[0]
 
 
 @pytest.mark.parametrize(

@@ -36,17 +36,12 @@ from ..sensors import DRIVER_MODES, SENSORS, DriverMode, get_sensor, scaled_mode
 
 
 @dataclass(frozen=True)
-class ModeSpec:
-    """One sensor mode.
+class ModeSpec(DriverMode):
+    """One sensor mode: the registry's (:class:`picamcal.sensors.DriverMode`: size, bit depth, crop on the active
+    pixel array, libcamera's ``analogCrop``, what ``ScalerCrop`` is measured in) with its timing.
 
     Attributes
     ----------
-    width, height : int
-        Output size in pixels.
-    bit_depth : int
-        Bits per pixel of the mode's media bus code.
-    crop : (x, y, width, height)
-        The analogue crop on the active pixel array (libcamera's ``analogCrop``, what ``ScalerCrop`` is measured in).
     line_length : int
         Line length in pixel clocks (``line_length_pix``, width + horizontal blanking).
     pixel_rate : float
@@ -55,10 +50,6 @@ class ModeSpec:
         Shortest frame in lines (height + the smallest vertical blanking).
     """
 
-    width: int
-    height: int
-    bit_depth: int
-    crop: tuple[int, int, int, int]
     line_length: int
     pixel_rate: float
     min_frame_lines: int
