@@ -251,3 +251,16 @@ def test_a_tuning_exported_from_a_cropped_mode_is_flat_in_every_mode_inside_its_
     # Outside the crop the table is extended, not measured: the full frame's corners are not flat (the test can fail).
     full = apply_tuning(refs["white"], tuning, mode=raw_geometry(refs["white"]), colour_gains=(1.0, 1.0))
     assert np.abs(corners_over_centre(full) - 1).max() > 0.05
+
+
+def test_a_frame_of_the_calibrations_size_is_of_its_mode_unless_both_say_otherwise_for_certain(refs, cal):
+    # A legacy JPEG+raw white records no crop: its 640 x 480 is taken as the IMX219's cropped 640x480 mode (registry).
+    bare = {k: RawImage(v.bayer, v.pattern, v.black_level, v.white_level, v.bit_depth, "imx219", {}) for k, v in
+            refs.items()}  # fmt: skip
+    guessed = picamcal.calibrate(**bare)
+    assert guessed.geometry.source == "registry" and guessed.geometry.crop == (1000, 752, 1280, 960)
+    # The simulator's frame says it is a whole 640 x 480 sensor: one side only guessed, so the same mode.
+    assert calibration_for_raw(guessed, refs["white"]) is guessed
+    # Both said for certain, and different (the frame mirrored): resampled, with the Bayer order the frame has.
+    flipped = mode_frame(refs["white"], (0, 0, *SIZE), flips=(True, True))
+    assert calibration_for_raw(cal, flipped).pattern == flipped.pattern != cal.pattern

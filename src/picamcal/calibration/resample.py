@@ -23,6 +23,8 @@ from . import Calibration
 
 __all__ = ["CROP_TOLERANCE", "calibration_for_raw", "resample_calibration", "site_order"]
 
+#: Where a geometry is taken rather than told (:data:`picamcal.geometry.GEOMETRY_SOURCES`).
+GUESSED_SOURCES = frozenset(("registry", "assumed", "unknown"))
 #: Pixels a frame's sensor area may reach past the calibration's crop (the rounding of binned and odd-sized modes).
 CROP_TOLERANCE = 2
 
@@ -172,14 +174,18 @@ def calibration_for_raw(calibration: Calibration, raw: RawImage, geometry: Senso
     >>> calibration_for_raw(cal, refs["white"]) is cal
     True
     """
+    assert calibration.geometry is not None
+    same_size = (raw.width, raw.height) == (calibration.width, calibration.height)
+    same_frame = same_size and raw.pattern == calibration.pattern
     if geometry is None:
-        same_size = (raw.width, raw.height) == (calibration.width, calibration.height)
-        if same_size and raw.pattern == calibration.pattern and not raw.metadata.get("sensor_crop"):
+        if same_frame and not raw.metadata.get("sensor_crop"):
             calibration.check_compatible(raw)  # a frame that does not say its mode: taken as the calibration's
             return calibration
         geometry = raw_geometry(raw)
-    assert calibration.geometry is not None
-    if geometry.area() == calibration.geometry.area() and raw.pattern == calibration.pattern:
+    guessed = GUESSED_SOURCES.intersection((geometry.source, calibration.geometry.source))
+    same_area = geometry.area() == calibration.geometry.area() and raw.pattern == calibration.pattern
+    if same_area or (same_frame and guessed):
+        # A frame of the calibration's size and Bayer order is of its mode unless both say otherwise for certain.
         calibration.check_compatible(raw)
         return calibration
     calibration.check_compatible(raw, same_mode=False)
