@@ -83,7 +83,8 @@ def test_a_first_file_of_another_size_does_not_stop_the_good_ones(data, tmp_path
     assert "wrote 3 image(s)" in result.stderr and "failed 1" in result.stderr
     assert failure_lines(result.stderr) == [
         f"picamcal: failed: {frames / 'a_small.dng'}: image does not match the calibration: size 160x120, "
-        "calibration is for 320x240"
+        "calibration is for 320x240: the image is of a 160x120 sensor, the calibration of a 320x240 one; give the "
+        "image's sensor area (--sensor-crop X,Y,WIDTH,HEIGHT) or calibrate in the image's mode"
     ]
     assert {p.name: p.read_bytes() for p in out.iterdir()} == {
         p.name: p.read_bytes() for p in data["reference"].iterdir()

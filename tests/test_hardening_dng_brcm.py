@@ -658,7 +658,8 @@ def test_forged_dng_sizes_are_refused_in_far_less_memory_than_one_frame(tmp_path
         assert peak - budget["inspect"] < budget["frame"] / 4, (forged.name, peak, budget)
     for forged, fragment in (
         (sparse, "declares an image of 16000x16000 pixels"),
-        (frames["full.dng"], "size 3280x2464, calibration is for 320x240"),  # legitimate, but not the calibration's
+        # legitimate, but larger than any mode of the calibration's sensor area: refused from its header
+        (frames["full.dng"], "size 3280x2464, larger than the calibration's 320x240 sensor area"),
     ):
         # Exit 1 (a batch with a bad file) or 2: how a one-file batch ends is the batch's; here, what it costs.
         code, stderr, peak = _correct(frames, forged, tmp_path / forged.stem)
@@ -694,7 +695,7 @@ def test_forged_brcm_files_are_refused_in_far_less_memory_than_one_frame(tmp_pat
     for forged, fragment in (
         (header, "the raw header says 65535x65535"),
         (sparse, "matches no known sensor mode"),
-        (frames["full.jpg"], "size 3280x2464, calibration is for 320x240"),
+        (frames["full.jpg"], "size 3280x2464, larger than the calibration's 320x240 sensor area"),
     ):
         code, stderr, peak = _correct(frames, forged, tmp_path / forged.stem)
         assert code in (1, 2) and fragment in stderr and "Traceback" not in stderr, stderr
