@@ -44,6 +44,12 @@ TAG = "PICAMCAL_KILL_TEST"
 GONE_WITHIN_S = 30.0
 
 
+def as_from_a_terminal() -> None:
+    """In the child, before it runs: SIGINT as a terminal gives it, whatever this test run inherited (started in the
+    background, by nohup or ``&``, SIGINT is ignored, and picamcal, rightly, leaves an ignored signal ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def command(*args: str) -> list[str]:
     return [sys.executable, "-c", "from picamcal.cli import main; main()", *args]
 
@@ -290,6 +296,7 @@ def interrupt(
         text=True,
         start_new_session=True,
         env={**os.environ, TAG: tag},
+        preexec_fn=as_from_a_terminal,
     )
     while process.poll() is None and len(finished_outputs(out)) < after:
         time.sleep(0.005)
@@ -357,7 +364,12 @@ def test_an_interrupted_zarr_batch_records_its_frames_and_leaves_no_chunk_tempor
     args = ("correct", str(pngs["cal"]), str(pngs["frames"]), "--zarr", str(stack), "--workers", "2")
     tag = uuid.uuid4().hex
     process = subprocess.Popen(
-        command(*args), stderr=subprocess.PIPE, text=True, start_new_session=True, env={**os.environ, TAG: tag}
+        command(*args),
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, TAG: tag},
+        preexec_fn=as_from_a_terminal,
     )
     chunks = names(stack / "0" / "c", "*")
     while process.poll() is None and len(chunks()) < 2:  # frames are being written: their chunk folders appear
@@ -407,6 +419,7 @@ def test_an_interrupted_batch_on_a_dask_cluster_stops_its_tasks(pngs, tmp_path):
         text=True,
         start_new_session=True,
         env={**os.environ, TAG: tag},
+        preexec_fn=as_from_a_terminal,
     )
     while process.poll() is None and len(finished_outputs(out)) < 2:
         time.sleep(0.005)
