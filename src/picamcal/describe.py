@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import warnings
 from collections.abc import Callable
@@ -125,6 +126,26 @@ _JSON_KINDS = {
 _MAX_JSON_BYTES = 16 << 20
 
 
+def _calibration(path: Path) -> Any:
+    """The calibration at ``path`` (read once, as long as the file is unchanged, for what :func:`what_else` and
+    :func:`survey` say of it), or None."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    return _load_calibration(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_calibration(path: str, mtime_ns: int, size: int) -> Any:
+    from .calibration import load_calibration
+
+    try:
+        return load_calibration(path)
+    except PicamcalError:
+        return None
+
+
 def what_else(path: Path) -> str | None:
     """What a file that is not an image is, when picamcal knows: a calibration, a sidecar, a tuning file, ...
 
@@ -147,11 +168,8 @@ def what_else(path: Path) -> str | None:
     except OSError:
         return None
     if path.suffix.lower() == ".npz" and not is_raw_npz(path):
-        from .calibration import load_calibration
-
-        try:
-            cal = load_calibration(path)
-        except PicamcalError:
+        cal = _calibration(path)
+        if cal is None:
             import zipfile
 
             return "NumPy .npz archive (not a raw image or a calibration)" if zipfile.is_zipfile(path) else None
@@ -216,12 +234,9 @@ def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dic
     other = what_else(path) if path.is_file() else None
     if other is not None:
         record = {"path": str(path), "format": other, "raw": False, "readable": True}
-        if other.startswith("picamcal calibration"):
-            from .calibration import load_calibration
-
-            geometry = load_calibration(path).geometry
-            assert geometry is not None
-            record.update(sensor_mode=geometry.describe(), geometry=geometry.to_record())
+        cal = _calibration(path) if other.startswith("picamcal calibration") else None
+        if cal is not None and cal.geometry is not None:
+            record.update(sensor_mode=cal.geometry.describe(), geometry=cal.geometry.to_record())
         return record
     try:
         return {**describe(path, read), "readable": True}

@@ -39,6 +39,7 @@ __all__ = [
     "GEOMETRY_SOURCES",
     "SensorMode",
     "assumed_geometry",
+    "driver_geometry",
     "full_field_binning",
     "image_to_image",
     "mode_for_image",
@@ -203,10 +204,24 @@ class SensorMode:
         )
 
 
-def _driver_geometry(sensor_size: tuple[int, int], mode: DriverMode, source: str) -> SensorMode:
+def driver_geometry(sensor_size: tuple[int, int], mode: DriverMode, source: str = "registry") -> SensorMode:
+    """A driver's mode (:class:`picamcal.sensors.DriverMode`) on a sensor of ``sensor_size`` as a :class:`SensorMode`.
+
+    Examples
+    --------
+    >>> from picamcal.sensors import sensor_modes
+    >>> driver_geometry((3280, 2464), sensor_modes("imx219")[1]).binning
+    2
+    """
     binning = max(1, round(mode.crop[2] / mode.width))
     output = (mode.width, mode.height)
     return SensorMode(*sensor_size, mode.crop, binning, bit_depth=mode.bit_depth, source=source, output=output)
+
+
+def _modes_of_size(sensor: str, width: int, height: int, bits: int | None) -> list[DriverMode]:
+    """The registry sensor's modes of that size, those of ``bits`` first, then the deepest."""
+    matches = [m for m in sensor_modes(sensor) if (m.width, m.height) == (width, height)]
+    return sorted(matches, key=lambda m: (m.bit_depth != bits, -m.bit_depth))
 
 
 def registry_mode(
@@ -222,11 +237,8 @@ def registry_mode(
     (2, None)
     """
     entry = SENSORS.get(sensor or "")
-    if entry is None:
-        return None
-    matches = [m for m in sensor_modes(entry.name) if (m.width, m.height) == (width, height)]
-    matches.sort(key=lambda m: (m.bit_depth != bit_depth, -m.bit_depth))  # that bit depth, else the deepest
-    return _driver_geometry((entry.width, entry.height), matches[0], source) if matches else None
+    matches = _modes_of_size(entry.name, width, height, bit_depth) if entry else []
+    return driver_geometry(entry.size, matches[0], source) if entry and matches else None
 
 
 def mode_names(sensor: str) -> str:
@@ -453,9 +465,8 @@ def named_mode(sensor: str | None, text: str, what: str = "--sensor-mode") -> Se
             f"{what} {text}: the sensor is {'not known' if not sensor else sensor + ', not in the registry'}, so "
             "its modes are not either: give --sensor-crop X,Y,WIDTH,HEIGHT instead"
         )
-    matches = [m for m in sensor_modes(entry.name) if (m.width, m.height) == (width, height)]
-    matches = sorted((m for m in matches if bits in (None, m.bit_depth)), key=lambda m: -m.bit_depth)
+    matches = [m for m in _modes_of_size(entry.name, width, height, bits) if bits in (None, m.bit_depth)]
     if not matches:
         modes = ", ".join(f"{m.width}x{m.height}:{m.bit_depth}" for m in sensor_modes(entry.name))
         raise PicamcalError(f"{what} {text}: the {entry.name} has no such mode (it has {modes})")
-    return _driver_geometry((entry.width, entry.height), matches[0], "given")
+    return driver_geometry(entry.size, matches[0], "given")

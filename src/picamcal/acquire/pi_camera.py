@@ -11,6 +11,7 @@ force), name and choose picamera2's sensor modes, and refuse a tuning for the ot
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import json
 import math
 import os
@@ -25,9 +26,10 @@ import numpy as np
 
 from ..errors import PicamcalError, PicamcalWarning
 from ..export.tuning import TARGET_NAMES, TuningError, load_tuning, neutral_tuning, stock_tuning_path
-from ..geometry import SensorMode, parse_sensor_mode
+from ..geometry import SensorMode, mode_from_crop, parse_sensor_mode
 from ..raw.model import RawImage
 from ..raw.picamera2 import capture_raw
+from ..raw.picamera2.metadata import active_area_size
 from .base import CameraError, CameraLimits
 
 __all__ = [
@@ -251,7 +253,8 @@ reports 1920x1080:10, 3280x2464:10)
 
 
 def mode_geometry(mode: Mapping[str, Any], pixel_array: Sequence[int]) -> SensorMode:
-    """Where a picamera2 sensor mode lies on the sensor: its ``crop_limits`` on the ``PixelArraySize``.
+    """Where a picamera2 sensor mode lies on the sensor: its ``crop_limits`` on the sensor's active area
+    (:func:`picamcal.geometry.mode_from_crop`).
 
     Examples
     --------
@@ -261,9 +264,10 @@ def mode_geometry(mode: Mapping[str, Any], pixel_array: Sequence[int]) -> Sensor
     (2, True)
     """
     width, height = (int(v) for v in pixel_array)
-    x, y, w, h = (int(v) for v in mode.get("crop_limits", (0, 0, width, height)))
-    binning = max(1, round(w / int(mode["size"][0])))
-    return SensorMode(width, height, (x, y, w, h), binning, bit_depth=int(mode["bit_depth"]), source="camera")
+    crop = tuple(int(v) for v in mode.get("crop_limits", (0, 0, width, height)))
+    size = (int(mode["size"][0]), int(mode["size"][1]))
+    geometry = mode_from_crop((width, height), size, crop, what="the mode's crop limits")  # type: ignore[arg-type]
+    return dataclasses.replace(geometry, bit_depth=int(mode["bit_depth"]), source="camera")
 
 
 def is_cropped(geometry: SensorMode) -> bool:
@@ -404,7 +408,7 @@ class Picamera2Camera:
         except CameraError:
             self._picam2.close()
             raise
-        self._pixel_array = tuple(self._picam2.camera_properties.get("PixelArraySize", self._mode["size"]))
+        self._pixel_array = tuple(active_area_size(self._picam2.camera_properties) or self._mode["size"])
         geometry = self.geometry()
         if sensor_mode is not None and is_cropped(geometry):
             x, y, w, h = geometry.crop

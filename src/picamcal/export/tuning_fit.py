@@ -18,7 +18,7 @@ from ..bayer import bin_edges
 from ..calibration import Calibration
 from ..calibration.resample import CROP_TOLERANCE, resample_calibration
 from ..errors import PicamcalWarning
-from ..geometry import SensorMode
+from ..geometry import SensorMode, driver_geometry
 from ..sensors import LSC_GRIDS, SENSORS, sensor_modes
 from .isp import GAIN_LIMITS, TuningError, check_tuning, lens_shading_gains, mode_resampling, table_to_pixels
 
@@ -192,14 +192,9 @@ def sensor_mode_geometries(calibration: Calibration) -> dict[str, SensorMode]:
     sensor = SENSORS.get(calibration.sensor or "")
     size = geometry.sensor_size
     if sensor is not None and (size == sensor.size or geometry.source not in ("assumed", "unknown")):
-        modes = {}
-        for m in sensor_modes(sensor.name, size):
-            binning = max(1, round(m.crop[2] / m.width))
-            mode = SensorMode(
-                *size, m.crop, binning, bit_depth=m.bit_depth, source="registry", output=(m.width, m.height)
-            )
-            modes[f"{m.width}x{m.height}:{m.bit_depth}"] = mode
-        return modes
+        return {
+            f"{m.width}x{m.height}:{m.bit_depth}": driver_geometry(size, m) for m in sensor_modes(sensor.name, size)
+        }
     bits = geometry.bit_depth or calibration.bit_depth
     full = SensorMode.full(*geometry.sensor_size, bit_depth=bits, source="assumed")
     return {f"{m.width}x{m.height}:{bits}": m for m in (full, geometry)}
