@@ -19,7 +19,6 @@ import re
 import shutil
 import subprocess
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -417,7 +416,6 @@ def test_running_firmware_takes_crlf_and_commands_sent_back_to_back(port, simula
 
 
 def test_serial_illuminator_drives_the_running_firmware(simulation):
-    start = time.monotonic()
     light = SerialIlluminator(simulation.port, timeout=2.0, retries=0, reset_wait=0.0)
     assert light.describe() == {"kind": "serial", "port": simulation.port, "baudrate": 9600, "firmware": ID}
     for rgb in [(255, 255, 255), (255, 0, 0), (0, 255, 0), (0, 0, 255)]:
@@ -425,5 +423,3 @@ def test_serial_illuminator_drives_the_running_firmware(simulation):
         assert simulation.next_frame()["bytes"] == (rgb[1], rgb[0], rgb[2])
     light.close()
     assert simulation.next_frame()["bytes"] == (0, 0, 0)
-    # Six exchanges of about 20 bytes at 9600 baud each way: well under a second of simulated line time.
-    assert time.monotonic() - start < 3.0

@@ -6,7 +6,6 @@ import enum
 import functools
 import io
 import json
-import time
 import warnings
 
 import numpy as np
@@ -774,33 +773,25 @@ def test_capture_raw_reads_the_request_and_releases_it():
     assert broken.request.released
 
 
-# --- speed -------------------------------------------------------------------------------------------------------
+# --- full-size frames (their speed is a benchmark's: benchmarks/run.py, "Reading one raw frame") ------------------
 
 
-def test_reading_an_8_megapixel_raw10_frame_is_fast():
+def test_an_8_megapixel_raw10_frame_decodes_exactly():
     width, height = 3280, 2464  # IMX219 full resolution, stride padded to 32 bytes as on a Pi 4
     mosaic = np.random.default_rng(0).integers(0, 1024, (height, width), dtype=np.uint16)
     stride = _aligned(packed_row_bytes(width, 10), 32)
-    buffer = pack(mosaic, 10, stride)
     config = _config("SBGGR10_CSI2P", width, height, stride)
-    best = min(_timed(from_picamera2, buffer, config, {"SensorBlackLevels": (4096,) * 4}) for _ in range(3))
-    np.testing.assert_array_equal(from_picamera2(buffer, config, {"SensorBlackLevels": (4096,) * 4}).bayer, mosaic)
-    assert best < 0.5, f"{best * 1000:.0f} ms"  # goal well under 150 ms; generous here for slow CI machines
+    decoded = from_picamera2(pack(mosaic, 10, stride), config, {"SensorBlackLevels": (4096,) * 4})
+    np.testing.assert_array_equal(decoded.bayer, mosaic)
 
 
-def test_decoding_an_8_megapixel_pisp_frame_takes_well_under_a_second():
+def test_an_8_megapixel_pisp_frame_of_every_code_decodes():
     width, height = 3280, 2464
     stride = _aligned(width, 64)
     buffer = np.random.default_rng(0).integers(0, 256, (height, stride), dtype=np.uint8)  # every mode, many escapes
     config = {"raw": _config("BGGR_PISP_COMP1", width, height, stride), "sensor": {"bit_depth": 10}}
-    best = min(_timed(_quiet, buffer, config, {"SensorBlackLevels": (4096,) * 4}) for _ in range(2))
-    assert best < 1.0, f"{best * 1000:.0f} ms"
-
-
-def _timed(function, *args) -> float:
-    start = time.perf_counter()
-    function(*args)
-    return time.perf_counter() - start
+    raw = _quiet(buffer, config, {"SensorBlackLevels": (4096,) * 4})
+    assert raw.bayer.shape == (height, width) and int(raw.bayer.max()) <= 1023
 
 
 @pytest.mark.parametrize("sensor", ["ov5647", "imx219", "imx477", "imx708"])
