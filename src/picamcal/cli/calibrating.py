@@ -162,7 +162,7 @@ def calibrate_cmd(
     what = (
         f"worst noise penalty (centre mode) {float(cal.noise_penalty('centre').max()):.2f}"
         if cal.has_unmixing
-        else "a flat field from the white alone (modes uncorrected and flat, no colour unmixing), "
+        else f"a flat field from the white{_and_dark(cal)} (modes uncorrected and flat, no colour unmixing), "
         f"worst noise penalty (flat mode) {float(cal.noise_penalty('flat').max()):.2f}"
     )
     lines = [
@@ -361,6 +361,11 @@ _BATCH_OPTION_NAMES = {
     "workers": "--workers",
     "scheduler": "--scheduler",
 }
+
+
+def _and_dark(cal: Any) -> str:
+    """What a flat field was made from besides its white: its dark frame, or nothing else."""
+    return " and the dark frame" if cal.black_level_source == "dark frame" else " alone"
 
 
 def _batch_read_options(*args: Any) -> dict[str, Any]:

@@ -115,7 +115,7 @@ class Camera:
     def create_request(self, cookie: int = 0) -> Request:
         if self._data.state not in ("configured", "running"):
             raise fail("Failed to create request", errno.ENOMEM)
-        return Request(self, cookie)
+        return Request(self._data, cookie)
 
     def queue_request(self, request: Request) -> None:
         self._data.queue(request)
@@ -420,7 +420,7 @@ class CameraData:
         with self.lock:
             if self.state != "running":
                 raise fail("Failed to queue request", errno.EACCES)
-            if request._camera._data is not self:
+            if request._owner is not self:
                 raise fail("Failed to queue request", errno.EXDEV)
             if request._status != RequestStatus.Pending or not request._buffers:
                 raise fail("Failed to queue request", errno.EINVAL)

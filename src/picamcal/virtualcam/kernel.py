@@ -39,6 +39,7 @@ from typing import Any
 
 from ..export.tuning import BUNDLED_TUNING_DIR
 from .buffers import BUFFER_NAME, allocate_memory
+from .raspios_pidng import patch_request_module
 
 #: Where libcamera installs the Raspberry Pi IPA's tuning files, and picamcal's copies of them.
 _INSTALLED = {f"/usr/share/libcamera/ipa/rpi/{p}/": BUNDLED_TUNING_DIR / p for p in ("vc4", "pisp")}
@@ -210,12 +211,14 @@ class _DisplayStandIn(importlib.abc.MetaPathFinder):
 
 def install_hooks(platform: str) -> None:
     """Answer picamera2's kernel calls from the virtual camera, in modules imported now or later (once); stand in
-    for kms++ where it is missing (:mod:`picamcal.virtualcam.display`)."""
+    for kms++ where it is missing (:mod:`picamcal.virtualcam.display`); give picamera2 the PiDNG interface of
+    Raspberry Pi OS (:mod:`picamcal.virtualcam.raspios_pidng`)."""
     patches: dict[str, Callable[[ModuleType], None]] = {
         "picamera2.dma_heap": _patch_heap,
         "picamera2.allocators.dmaallocator": _patch_heap,
         "picamera2.platform": _patch_platform(platform),
         "picamera2.picamera2": _patch_files,
+        "picamera2.request": patch_request_module,
     }
     if any(isinstance(finder, _AfterImport) for finder in sys.meta_path):
         return

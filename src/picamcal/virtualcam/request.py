@@ -16,13 +16,13 @@ import errno
 import os
 import sys
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Protocol
 
 from .buffers import FrameBuffer
-from .controls import CONTROLS, ControlId, ConvertibleEnum, control_value, metadata_value
+from .controls import CONTROLS, ControlId, ControlInfo, ConvertibleEnum, control_value, metadata_value
 
 if TYPE_CHECKING:
-    from .camera import Camera
     from .config import Stream
 
 _LEVELS = ("DEBUG", "INFO", "WARN", "ERROR", "FATAL")
@@ -68,14 +68,22 @@ class ReuseFlag(ConvertibleEnum):
     ReuseBuffers = 1
 
 
+class RequestOwner(Protocol):
+    """What a request needs of the camera that made it (libcamera's ``Request::camera()``): the controls it handles
+    now (they follow the configured sensor mode). The camera also tells its own requests by it."""
+
+    @property
+    def control_infos(self) -> Mapping[ControlId, ControlInfo]: ...
+
+
 class Request:
     """A capture request: buffers to fill, controls to apply, and the metadata that comes back."""
 
     Status = RequestStatus
     Reuse = ReuseFlag
 
-    def __init__(self, camera: Camera, cookie: int) -> None:
-        self._camera = camera
+    def __init__(self, owner: RequestOwner, cookie: int) -> None:
+        self._owner = owner
         self._cookie = int(cookie)
         self._buffers: dict[Stream, FrameBuffer] = {}
         self._controls: dict[str, Any] = {}
@@ -106,7 +114,7 @@ class Request:
         self._pending += 1
 
     def set_control(self, control: ControlId, value: Any) -> None:
-        if control not in self._camera._control_infos:
+        if control not in self._owner.control_infos:
             log("ERROR", "Controls", "controls.cpp", f"Control 0x{control.id:08x} is not supported")
             return
         self._controls[control.name] = control_value(control, value)
