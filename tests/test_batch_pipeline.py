@@ -15,10 +15,12 @@ from conftest import simulated_calibration
 from picamcal import PicamcalWarning
 from picamcal.batch import BatchOptions, run_batch
 from picamcal.batch.pipeline import OUTPUT_SLOTS, READ_AHEAD, SlotPool, overlapped
+from picamcal.batch.record import batch_settings, made_with
 from picamcal.calibration import load_calibration
 from picamcal.correct import correct
 from picamcal.output import OUTPUT_SUFFIXES, camera_to_srgb, write_corrected
 from picamcal.raw import read_raw, write_dng
+from picamcal.records import sha256_file
 from picamcal.simulate import make_camera, simulate_target
 
 SIZE = (320, 240)
@@ -39,12 +41,25 @@ def data(tmp_path_factory) -> dict[str, Path]:
 
 
 def serial(cal_path: Path, frames: list[Path], out: Path, output_format: str, compression: str | None) -> None:
-    """The plain library recipe, one file after the other: read, correct (float32), write."""
+    """The plain library recipe, one file after the other: read, correct (float32), write, with the record of the
+    settings a batch writes (picamcal.batch.record)."""
     cal = load_calibration(cal_path)
     out.mkdir()
+    settings = batch_settings(
+        calibration=cal_path,
+        calibration_sha256=sha256_file(cal_path),
+        mode="centre",
+        binned=False,
+        processed=False,
+        output_format=output_format,
+        compression=compression,
+        read_options={},
+        geometry={},
+    )
     for frame in frames:
         raw = read_raw(frame)
         info = {"source": frame.name, "calibration": cal_path.name, "mode": "centre", "binned": False}
+        info["made_with"] = made_with(settings, raw)
         write_corrected(
             out / f"{frame.stem}{OUTPUT_SUFFIXES[output_format]}",
             correct(raw, cal, "centre"),

@@ -8,13 +8,14 @@ from pathlib import Path
 
 from .._atomic import make_temporary, remove_stale_temporaries
 from ..errors import OutputError
+from .claims import remove_stale_claims
 
 #: errno values that mean the output place itself is unusable: every further file would fail the same way.
 PLACE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
 
 
 def prepare_folder(out_dir: Path, frame_bytes: int) -> list[Path]:
-    """Create the output folder, remove the temporaries killed runs left, and check it takes one output.
+    """Create the output folder, remove the temporaries and claims killed runs left, and check it takes one output.
 
     Returns
     -------
@@ -51,6 +52,7 @@ def prepare_folder(out_dir: Path, frame_bytes: int) -> list[Path]:
         except OSError as exc:
             raise OutputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from exc
         remove_stale_temporaries(out_dir)
+        remove_stale_claims(out_dir)
         probe(out_dir, frame_bytes)
     except BaseException:  # refused, or interrupted: leave no folder this call made
         remove_empty_folders(created)

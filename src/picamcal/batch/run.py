@@ -6,6 +6,7 @@ import os
 import shutil
 import signal
 import time
+import uuid
 import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -30,12 +31,14 @@ from ..output import OUTPUT_SUFFIXES, camera_to_srgb, is_picamcal_output, output
 from ..output.ome_zarr import ZarrStack
 from ..raw.processed import linearise, read_processed
 from ..records import sha256_file
+from . import claims
 from .disk import missing_folders, prepare_folder, probe, remove_empty_folders
 from .executors import Dask, InProcess, Pool, Runner, available_cores, connect
 from .inputs import expand_inputs, is_pattern
 from .options import BatchOptions
+from .record import batch_settings, file_identity, summary
 from .stopping import Interrupt
-from .worker import Job, Settings, keep_calibration
+from .worker import Job, Outcome, Settings, existing_output, keep_calibration
 
 PathArg = str | os.PathLike[str]
 
@@ -49,7 +52,14 @@ class BatchResult:
     done : list of Path
         Inputs corrected and written by this run.
     skipped : list of Path
-        Inputs whose output existed already (written by an earlier, perhaps interrupted, run).
+        Inputs whose output existed already, made with this run's settings (written by an earlier, perhaps
+        interrupted, run).
+    kept : list of (Path, list of str)
+        Inputs whose output existed already, made with other settings, and was kept (without ``overwrite``):
+        with how those differ (:func:`picamcal.batch.record.differences`, ``"black level 0, now 64"``).
+    by_another_run : list of Path
+        Inputs whose output another run writing into the same folder at the same time wrote, with this run's
+        settings (:mod:`picamcal.batch.claims`).
     failed : list of (Path, str)
         Inputs that could not be corrected, with the reason in one line.
     mode : Mode or None
@@ -63,6 +73,24 @@ class BatchResult:
     failed: list[tuple[Path, str]] = field(default_factory=list)
     mode: Mode | None = None
     mode_reason: str | None = None
+    kept: list[tuple[Path, list[str]]] = field(default_factory=list)
+    by_another_run: list[Path] = field(default_factory=list)
+
+    def kept_message(self) -> str | None:
+        """One line on the outputs kept although made with other settings; None if there are none.
+
+        Examples
+        --------
+        >>> BatchResult(kept=[(Path("a.dng"), ["black level 0, now 64"])]).kept_message()
+        'kept 1 output made with other settings (black level 0, now 64): use --overwrite to remake them'
+        """
+        if not self.kept:
+            return None
+        count = len(self.kept)
+        return (
+            f"kept {count} output{'s' if count > 1 else ''} made with other settings ({summary(self.kept)}): "
+            "use --overwrite to remake them"
+        )
 
     def failure_of_one_file(self) -> PicamcalError | None:
         """A batch of one file that failed: that file's failure, as the error a command of one file raises
@@ -74,7 +102,7 @@ class BatchResult:
         PicamcalError('a.dng: no such file')
         >>> BatchResult(done=[Path("b.dng")], failed=[(Path("a.dng"), "no such file")]).failure_of_one_file()
         """
-        if len(self.failed) != 1 or self.done or self.skipped:
+        if len(self.failed) != 1 or self.done or self.skipped or self.kept or self.by_another_run:
             return None
         path, reason = self.failed[0]
         return PicamcalError(reason, path)
@@ -222,8 +250,12 @@ def _run(
         columns, rows = options.mosaic
         raise PicamcalError(f"{len(sources)} frames do not fit a mosaic of {columns} x {rows} tiles")
     stack = None
+    kept: list[tuple[Path, list[str]]] = []
+    failed: list[tuple[Path, str]] = []
     if options.zarr_path is None:
-        jobs, skipped = _plan_files(sources, options.place, options.overwrite, OUTPUT_SUFFIXES[options.output_format])
+        jobs, skipped, kept, failed = _plan_files(
+            sources, options.place, settings, OUTPUT_SUFFIXES[options.output_format]
+        )
     else:
         absolute = [str(source.absolute()) for source in sources]
         calibration_name = Path(settings.calibration).name
@@ -232,7 +264,7 @@ def _run(
         jobs = [Job(i, absolute[i], None) for i in todo]
         skipped = [source for i, source in enumerate(sources) if i in stack.done]
     reason = best_mode_reason(cal.has_unmixing) if options.mode is None else None
-    result = BatchResult(skipped=skipped, mode=mode, mode_reason=reason)
+    result = BatchResult(skipped=skipped, kept=kept, failed=failed, mode=mode, mode_reason=reason)
     if not jobs:  # everything done already: a finished batch run again has nothing to do
         return result
     frame_shape = _frame_shape(cal, sources, jobs, settings)
@@ -257,7 +289,10 @@ def _run(
             runner = Pool(settings, max(1, min(options.workers or available_cores(), len(jobs))))
         interrupt.working()
         started_ns = time.time_ns() - 20_000_000  # file times come from a coarser clock, a few ms behind
-        place_error = _drive(runner, jobs, sources, result, stack, progress, interrupt)
+        try:
+            place_error = _drive(runner, jobs, sources, result, stack, progress, interrupt, settings)
+        finally:
+            runner.close()
     finally:
         if stack is not None:
             stack.release()
@@ -268,6 +303,7 @@ def _run(
         if interrupt.is_set() and stack is None:  # the writes dropped: a killed worker's, or one left to a thread
             remove_stale_temporaries(options.place)
             discard_own_temporaries(options.place)
+            claims.remove_stale_claims(options.place)
         if not result.done:  # a stack this run made holds no frame: it goes too, if no other run writes it now
             if stack is not None and options.place in created and stack.unused():
                 shutil.rmtree(options.place, ignore_errors=True)
@@ -326,17 +362,34 @@ def _check_files(options: BatchOptions) -> str:
 
 
 def _settings(calibration_path: PathArg, options: BatchOptions, decode: str, mode: Mode) -> Settings:
-    """What the workers need, with absolute paths (a dask worker has another working folder)."""
+    """What the workers need, with absolute paths (a dask worker has another working folder), and what the outputs
+    record of how they were made (:func:`picamcal.batch.record.batch_settings`)."""
+    calibration_sha256 = sha256_file(Path(calibration_path))
+    geometry = {"sensor_crop": options.sensor_crop, "sensor_mode": options.sensor_mode}
+    record = batch_settings(
+        calibration=calibration_path,
+        calibration_sha256=calibration_sha256,
+        mode=str(mode),
+        binned=options.binned,
+        processed=options.processed,
+        output_format=options.output_format,
+        compression=options.compression,
+        read_options=options.read_options,
+        geometry=geometry,
+        input_encoding=options.encoding,
+        white=file_identity(options.white),
+        tuning=file_identity(options.tuning),
+    )
     return Settings(
         calibration=str(Path(calibration_path).absolute()),
-        calibration_sha256=sha256_file(Path(calibration_path)),
+        calibration_sha256=calibration_sha256,
         mode=str(mode),
         binned=options.binned,
         processed=options.processed,
         input_encoding=options.encoding,
         decode=decode,
         read_options=options.read_options,
-        geometry={"sensor_crop": options.sensor_crop, "sensor_mode": options.sensor_mode},
+        geometry=geometry,
         white=None if options.white is None else str(Path(options.white).absolute()),
         tuning=None if options.tuning is None else str(Path(options.tuning).absolute()),
         compression=options.compression,
@@ -344,6 +397,9 @@ def _settings(calibration_path: PathArg, options: BatchOptions, decode: str, mod
         overwrite=options.overwrite,
         zarr_array=None if options.zarr_path is None else str(Path(options.zarr_path).absolute() / "0"),
         mosaic=options.mosaic,
+        record=record,
+        started_ns=time.time_ns(),  # an output of a moment before, stamped by a coarser clock, counts as older
+        run=uuid.uuid4().hex,
     )
 
 
@@ -359,6 +415,12 @@ def _signature(settings: Settings) -> dict[str, Any]:
         "white": settings.white,
         "tuning": settings.tuning,
         "mosaic": list(settings.mosaic) if settings.mosaic else None,
+        # only when given: the stacks of the runs before the geometry was recorded resume
+        **(
+            {"geometry": {key: settings.record[key] for key in ("sensor_crop", "sensor_mode")}}
+            if any(settings.geometry.values())
+            else {}
+        ),
     }
 
 
@@ -379,12 +441,16 @@ def _check_processed_references(white: PathArg | None, tuning: PathArg | None, d
         load_tuning(tuning)
 
 
-def _plan_files(sources: list[Path], out_dir: Path, overwrite: bool, suffix: str) -> tuple[list[Job], list[Path]]:
-    """One job per input whose file (``<stem><suffix>``) is still to write; refuse name clashes and outputs that
-    would replace an input."""
+def _plan_files(
+    sources: list[Path], out_dir: Path, settings: Settings, suffix: str
+) -> tuple[list[Job], list[Path], list[tuple[Path, list[str]]], list[tuple[Path, str]]]:
+    """One job per input whose file (``<stem><suffix>``) is still to write; the inputs whose output is in place,
+    made with these settings (skipped) or with others (kept, and how they differ); the inputs whose output's name is
+    taken by a file picamcal did not write (failed). Refuse name clashes and outputs that would replace an input,
+    and, to ``overwrite``, a file picamcal did not write."""
     inputs = {Path(os.path.realpath(source)) for source in sources}
     writers: dict[str, Path] = {}
-    jobs, skipped = [], []
+    jobs, skipped, kept, failed = [], [], [], []
     for index, source in enumerate(sources):
         target = out_dir / f"{source.stem}{suffix}"
         if target.name in writers:
@@ -392,12 +458,20 @@ def _plan_files(sources: list[Path], out_dir: Path, overwrite: bool, suffix: str
         writers[target.name] = source
         if Path(os.path.realpath(target)) in inputs:
             raise OutputError("output would replace an input file; choose another --out", target)
-        if target.exists() and not overwrite:
+        if settings.overwrite:
+            refuse_foreign(target, is_picamcal_output, "an image picamcal wrote")
+        try:
+            existing = existing_output(str(target), settings)
+        except OutputError as exc:
+            failed.append((source, f"its output {exc}"))
+            continue
+        if existing is None:
+            jobs.append(Job(index, str(source.absolute()), str(target.absolute())))
+        elif existing.kind == "written":
             skipped.append(source)
         else:
-            refuse_foreign(target, is_picamcal_output, "an image picamcal wrote")
-            jobs.append(Job(index, str(source.absolute()), str(target.absolute())))
-    return jobs, skipped
+            kept.append((source, list(existing.kept)))
+    return jobs, skipped, kept, failed
 
 
 def _frame_shape(cal: Calibration, sources: list[Path], jobs: list[Job], settings: Settings) -> tuple[int, ...]:
@@ -423,40 +497,97 @@ def _drive(
     stack: ZarrStack | None,
     progress: Callable[[int, int], None] | None,
     interrupt: Interrupt,
+    settings: Settings,
 ) -> str | None:
     """Run the jobs and record each outcome. Returns why the output place became unusable, if it did (then no
     more work was started). Interrupted, the files whose task was lost (its worker killed) are neither done nor
-    failed: a re-run does them."""
+    failed: a re-run does them.
+
+    An output another run writing into the same folder has claimed (:mod:`picamcal.batch.claims`) is left to it;
+    once that run is done with it, the output is either in place (written by the other run) or still to write
+    (the other run failed or was stopped), and then this run does it."""
     place_error = None
-    count = 0
+    finished = 0
     if progress is not None:
         progress(0, len(jobs))
     by_index = {job.index: job for job in jobs}
-    outcomes = runner.outcomes(jobs, lambda: place_error is not None, interrupt)
-    try:
-        for outcome in outcomes:
-            if outcome.lost and interrupt.is_set():
-                continue
-            job = by_index[outcome.index]
-            source = sources[job.index]
-            for message in outcome.warnings:
-                warnings.warn(message.replace(job.source, str(source), 1), PicamcalWarning, stacklevel=2)
-            if outcome.error is None:
-                result.done.append(source)
-                if stack is not None:
-                    stack.finished(job.index)
-            else:
-                result.failed.append((source, outcome.error))
-                place_error = place_error or outcome.place_error
-            count += 1
+    todo, claimed = list(jobs), []
+
+    def place_failed() -> bool:
+        return place_error is not None
+
+    while todo:
+        outcomes = runner.outcomes(todo, place_failed, interrupt)
+        try:
+            for outcome in outcomes:
+                if outcome.lost and interrupt.is_set():
+                    continue
+                job = by_index[outcome.index]
+                if outcome.elsewhere == "claimed":
+                    claimed.append(job)
+                    continue
+                place_error = place_error or _record(outcome, job, sources[job.index], result, stack)
+                finished += 1
+                if progress is not None:
+                    progress(finished, len(jobs))
+        finally:
+            outcomes.close()  # a pipeline in this process stops its stages if the loop ended early
+            if stack is not None:
+                stack.write_record()
+        todo = []
+        while claimed and not todo and not interrupt.is_set() and place_error is None:
+            todo, claimed = _claims_let_go(claimed, sources, result, settings)
+            finished = len(jobs) - len(claimed) - len(todo)
             if progress is not None:
-                progress(count, len(jobs))
-    finally:
-        outcomes.close()  # a pipeline in this process stops its stages if the loop ended early
-        runner.close()
-        if stack is not None:
-            stack.write_record()
+                progress(finished, len(jobs))
     return place_error
+
+
+def _record(outcome: Outcome, job: Job, source: Path, result: BatchResult, stack: ZarrStack | None) -> str | None:
+    """Put one job's outcome into ``result``; returns why the output place is unusable, if the outcome says so."""
+    for message in outcome.warnings:
+        warnings.warn(message.replace(job.source, str(source), 1), PicamcalWarning, stacklevel=3)
+    if outcome.error is not None:
+        result.failed.append((source, outcome.error))
+        return outcome.place_error
+    if outcome.elsewhere == "written":
+        result.by_another_run.append(source)
+    elif outcome.elsewhere == "kept":
+        result.kept.append((source, list(outcome.kept)))
+    else:
+        result.done.append(source)
+        if stack is not None:
+            stack.finished(job.index)
+    return None
+
+
+#: Seconds between two looks at the claims of another run that this run waits for.
+_CLAIM_LOOK_S = 0.05
+
+
+def _claims_let_go(
+    claimed: list[Job], sources: list[Path], result: BatchResult, settings: Settings
+) -> tuple[list[Job], list[Job]]:
+    """Wait a moment for the claims of other runs on ``claimed`` outputs; put those let go and in place into
+    ``result``; return the jobs let go whose output is still to write (this run's to do), and those still claimed."""
+    time.sleep(_CLAIM_LOOK_S)
+    todo, still = [], []
+    for job in claimed:
+        assert job.target is not None  # only files are claimed
+        if claims.is_claimed(job.target):
+            still.append(job)
+            continue
+        source = sources[job.index]
+        try:
+            existing = existing_output(job.target, settings)
+        except OutputError as exc:
+            result.failed.append((source, f"its output {exc}"))
+            continue
+        if existing is None:
+            todo.append(job)
+        else:
+            _record(Outcome(job.index, elsewhere=existing.kind, kept=existing.kept), job, source, result, None)
+    return todo, still
 
 
 __all__ = ["BatchInterrupted", "BatchResult", "run_batch"]

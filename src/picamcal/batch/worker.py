@@ -9,6 +9,8 @@ calibration by its path and SHA-256.
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -30,12 +32,15 @@ from ..limits import SizeBound
 from ..modes import Mode
 from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
 from ..output.ome_zarr import write_frame
+from ..output.provenance import read_record
 from ..raw import RawImage, flat_field_gain_map, read_raw, write_dng, write_linear_dng
 from ..raw.model import raw_geometry
 from ..raw.processed import ProcessedImage, read_processed
 from ..records import sha256_file
+from . import claims
 from .disk import PLACE_ERRORS
 from .pipeline import Finished, Slot, SlotPool, overlapped
+from .record import MADE_WITH, differences, made_with
 
 _T = TypeVar("_T")
 
@@ -61,6 +66,9 @@ class Settings:
     mosaic: tuple[int, int] | None = None  # (columns, rows): frame i is the tile at row, column = divmod(i, columns)
     stop_event: str | None = None  # on a dask cluster: the name of the distributed.Event that stops the batch
     geometry: dict[str, Any] = field(default_factory=dict)  # raw_geometry's sensor_crop and sensor_mode, as given
+    record: dict[str, Any] = field(default_factory=dict)  # what the outputs record (picamcal.batch.record)
+    started_ns: int = 0  # when the run began (time.time_ns()): an output newer than that was written meanwhile
+    run: str = ""  # names this run in the claims of its outputs (picamcal.batch.claims), the same in every worker
 
 
 @dataclass(frozen=True)
@@ -81,6 +89,55 @@ class Outcome:
     place_error: str | None = None  # the output place is unusable (disk full, read-only): stop the batch
     warnings: tuple[str, ...] = ()
     lost: bool = False  # the task was lost with its worker or cluster, not failed by the file itself
+    elsewhere: str | None = None  # not this run's to write: "claimed", "written" or "kept" (see Existing)
+    kept: tuple[str, ...] = ()  # with "kept": how the settings of the output found differ (record.differences)
+
+
+@dataclass(frozen=True)
+class Existing:
+    """An output found in place, not to be written by this run: ``written`` (made with this run's settings) or
+    ``kept`` (made with others, ``kept`` saying how they differ)."""
+
+    kind: str
+    kept: tuple[str, ...] = ()
+
+
+class NotThisRuns(Exception):
+    """The job's output is not this run's to write: another run holds its claim (``"claimed"``), or it is in place
+    (``"written"`` since the run planned it, or ``"kept"``: made with other settings)."""
+
+    def __init__(self, kind: str, kept: tuple[str, ...] = ()) -> None:
+        super().__init__(kind)
+        self.kind, self.kept = kind, kept
+
+
+def existing_output(target: str, settings: Settings) -> Existing | None:
+    """What is at ``target`` for this run: None if nothing, or an output this run replaces (``overwrite``, and
+    older than the run); else an :class:`Existing`.
+
+    Raises
+    ------
+    OutputError
+        A file is there that picamcal did not write: never replaced.
+    """
+    try:
+        stat = os.stat(target)
+    except OSError:
+        return None
+    if settings.overwrite and stat.st_mtime_ns < settings.started_ns:
+        return None  # there before the run began: replaced, as asked (planning refused anything not picamcal's)
+    try:
+        record = read_record(target)
+    except Exception:  # whatever the bytes: a file that cannot be read as an image is not one of ours
+        record = None
+    if record is None:
+        raise OutputError(
+            "exists and is not an image picamcal wrote: picamcal replaces only what it wrote itself; choose another "
+            "--out",
+            target,
+        )
+    found = tuple(differences(record.get(MADE_WITH), settings.record))
+    return Existing("kept", found) if found else Existing("written")
 
 
 #: Per worker process: what was loaded once (calibration, white reference, tuning), keyed by what identifies it.
@@ -203,11 +260,16 @@ def outcomes(settings: Settings, jobs: Sequence[Job], cancel: Callable[[], bool]
         yield from (Outcome(job.index, str(exc)) for job in jobs)
         return
     stages = _Stages(settings)
-    with _SLOTS.taken() as slots:
-        for finished in overlapped(
-            jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error, slots=slots, cancel=cancel
-        ):
-            yield _outcome(finished)
+    try:
+        with _SLOTS.taken() as slots:
+            for finished in overlapped(
+                jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error, slots=slots, cancel=cancel
+            ):
+                stages.release(finished.job)  # written, failed or not this run's: the claim goes
+                yield _outcome(finished)
+    finally:  # the jobs dropped (an interrupt, a full disk): their claims go too
+        for job in jobs:
+            stages.release(job)
 
 
 def _outcome(finished: Finished[Job]) -> Outcome:
@@ -215,6 +277,8 @@ def _outcome(finished: Finished[Job]) -> Outcome:
     messages = tuple(str(w.message) for w in finished.warnings if issubclass(w.category, PicamcalWarning))
     if exc is None:
         return Outcome(job.index, warnings=messages)
+    if isinstance(exc, NotThisRuns):
+        return Outcome(job.index, warnings=messages, elsewhere=exc.kind, kept=exc.kept)
     if isinstance(exc, PicamcalError):
         error = exc.problem if exc.path == job.source else str(exc)
     else:  # a surprise in one file must not stop the others
@@ -235,42 +299,75 @@ class _Stages:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.calibration = calibration_of(settings)
+        self.claimed: set[str] = set()  # the outputs this run claimed and has not released (picamcal.batch.claims)
+
+    def claim(self, job: Job) -> None:
+        """Claim the job's output before any work on it (:mod:`picamcal.batch.claims`); raise :class:`NotThisRuns`
+        if another run holds it or it is in place by now (written by another run since this one planned it)."""
+        if job.target is None:  # a zarr frame: the stack's own record says which are done
+            return
+        try:
+            if not claims.take(job.target, self.settings.run):
+                raise NotThisRuns("claimed")
+        except OSError:  # a folder that cannot be written: the write says so
+            return
+        self.claimed.add(job.target)
+        existing = existing_output(job.target, self.settings)
+        if existing is not None:
+            raise NotThisRuns(existing.kind, existing.kept)
+
+    def release(self, job: Job) -> None:
+        """Give up the claim of the job's output, if this run holds it."""
+        if job.target is not None and job.target in self.claimed:
+            self.claimed.discard(job.target)
+            claims.release(job.target, self.settings.run)
 
     def read(self, job: Job) -> RawImage | ProcessedImage:
-        """The decoded file; a raw file's size is checked from its header, before a frame of another size is
-        decoded."""
+        """The decoded file, once its output is claimed (:meth:`claim`); a raw file's size is checked from its
+        header, before a frame of another size is decoded."""
+        self.claim(job)
         if self.settings.processed:
             return read_processed(Path(job.source), self.settings.decode)
         cal = self.calibration
         return read_raw(Path(job.source), **self.settings.read_options, expected_shape=frame_bound(cal))
 
-    def correct(self, image: RawImage | ProcessedImage, slot: Slot) -> tuple[np.ndarray | RawImage, dict[str, Any]]:
-        """The corrected image (into the slot's array when the kernel can reuse it), and the metadata its colour
-        matrix comes from (the raw's; none for processed images)."""
+    def correct(self, image: RawImage | ProcessedImage, slot: Slot) -> _Corrected:
+        """The corrected image (into the slot's array when the kernel can reuse it), the metadata its colour
+        matrix comes from (the raw's; none for processed images), and what the output records of how it was made
+        (:func:`picamcal.batch.record.made_with`)."""
         settings, cal = self.settings, self.calibration
         if isinstance(image, ProcessedImage):
-            return _correct_processed(image, cal, settings), {}
+            return _correct_processed(image, cal, settings), {}, made_with(settings.record)
+        made = made_with(settings.record, image)
         if settings.binned:
             geometry = raw_geometry(image, **settings.geometry) if any(settings.geometry.values()) else None
-            return correct(image, cal, mode=settings.mode, binned=True, geometry=geometry), image.metadata
+            return correct(image, cal, mode=settings.mode, binned=True, geometry=geometry), image.metadata, made
         if settings.output_format == "dng-gainmap":  # the frame goes out unchanged, the flat field as opcodes
-            return image, image.metadata
+            return image, image.metadata, made
         # uint16-tiff codes straight from the kernel: no float32 image at full resolution to encode afterwards
         dtype = np.uint16 if settings.output_format == "uint16-tiff" else np.float32
         out = slot.array if fits(slot.array, image.height, image.width, dtype) else None  # an earlier batch's size
         geometry = raw_geometry(image, **settings.geometry) if any(settings.geometry.values()) else None
         slot.array = correct(image, cal, mode=settings.mode, out=out, dtype=dtype, geometry=geometry)
-        return slot.array, image.metadata
+        return slot.array, image.metadata, made
 
-    def write(self, job: Job, corrected: tuple[np.ndarray | RawImage, dict[str, Any]]) -> None:
-        image, source_metadata = corrected
+    def write(self, job: Job, corrected: _Corrected) -> None:
+        image, source_metadata, made = corrected
+        if job.target is not None:
+            claims.touch(job.target)  # still at work on it, for the runs of other machines
         if isinstance(image, RawImage):  # dng-gainmap: the flat field at the frame's own mode
             geometry = raw_geometry(image, **self.settings.geometry) if any(self.settings.geometry.values()) else None
+            image = dataclasses.replace(image, metadata={**image.metadata, MADE_WITH: made})
             _write_gain_map_dng(self.settings, job, image, calibration_for_raw(self.calibration, image, geometry))
         elif self.settings.output_format == "linear-dng":
-            _write_linear_dng(self.settings, job, image, source_metadata, self.calibration)
+            _write_linear_dng(self.settings, job, image, {**source_metadata, MADE_WITH: made}, self.calibration)
         else:
-            _write(self.settings, job, image, source_metadata)
+            _write(self.settings, job, image, source_metadata, made)
+
+
+#: What the correcting stage hands the writing one: the image (a raw frame for dng-gainmap), the metadata of its
+#: colour, and the output's ``made_with`` record.
+_Corrected = tuple[np.ndarray | RawImage, dict[str, Any], dict[str, Any]]
 
 
 def frame_bound(cal: Calibration) -> SizeBound:
@@ -306,7 +403,9 @@ def _tuning(path: str) -> dict[str, Any]:
     return _cached(("tuning", path), lambda: load_tuning(path))
 
 
-def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any]) -> None:
+def _write(
+    settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any], made: dict[str, Any]
+) -> None:
     if settings.zarr_array is not None:
         write_frame(settings.zarr_array, job.index, rgb, settings.mosaic, source=job.source)
         return
@@ -318,6 +417,7 @@ def _write(settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[
     }
     if settings.processed:
         info["input_encoding"] = settings.input_encoding
+    info[MADE_WITH] = made
     write_corrected(
         _target(job),
         rgb,
@@ -349,7 +449,7 @@ def _write_linear_dng(
     write_linear_dng(
         _target(job),
         rgb,
-        metadata=None if settings.processed else source_metadata or None,
+        metadata={MADE_WITH: source_metadata[MADE_WITH]} if settings.processed else source_metadata,
         sensor=cal.sensor,
         to_camera=cal.centre_response if settings.mode == Mode.PURE else None,
         overwrite=settings.overwrite,

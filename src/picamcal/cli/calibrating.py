@@ -269,16 +269,22 @@ def correct_cmd(
     ] = None,
     compression: Annotated[str | None, typer.Option(help="Compress the outputs: zstd.")] = None,
     overwrite: Annotated[
-        bool, typer.Option(help="Replace existing outputs (without it they are skipped: an interrupted batch resumes).")
+        bool,
+        typer.Option(
+            help="Replace existing outputs picamcal wrote (without it, those made with the same settings are skipped: "
+            "an interrupted batch resumes; those made with other settings are kept and named)."
+        ),
     ] = False,
 ) -> None:
     """Correct raw (or, with --processed, ISP-processed) images in parallel; write one image file per input.
 
     float32 linear RGB TIFF by default; uint16 linear TIFF for Fiji/ImageJ; sRGB PNG (8 or 16 bit) or
-    JPEG, colour-managed, to look at (docs/outputs.md). Existing outputs are skipped, so running the same
-    command again resumes an interrupted batch (Ctrl-C or SIGTERM stop it within about a second). The output
-    folder may lie inside a folder of inputs (scans/corrected for scans/). A file that fails is reported and
-    does not stop the others (exit status 1); a single file that fails is an error (exit status 2).
+    JPEG, colour-managed, to look at (docs/outputs.md). Existing outputs made with the same settings are skipped,
+    so running the same command again resumes an interrupted batch (Ctrl-C or SIGTERM stop it within about a
+    second); outputs made with other settings are kept and named (exit status 1) unless --overwrite. Batches
+    writing into one folder at once share the work. The output folder may lie inside a folder of inputs
+    (scans/corrected for scans/). A file that fails is reported and does not stop the others (exit status 1); a
+    single file that fails is an error (exit status 2).
     """
     from ..batch import COMPRESSIONS, BatchInterrupted, BatchOptionError, BatchOptions, run_batch
     from ..output import BATCH_FORMATS
@@ -339,11 +345,16 @@ def correct_cmd(
     elapsed = time.monotonic() - bar["start"] if bar else 0.0
     rate = f" ({len(result.done) / elapsed:.1f} files/s)" if result.done and elapsed > 0 else ""
     why = f" ({result.mode_reason})" if result.mode_reason else ""
+    if (kept := result.kept_message()) is not None:  # outputs not made as asked: said, and exit status 1
+        say(f"picamcal: {kept}")
+    others = (
+        f"; {len(result.by_another_run)} written by another run into the same folder" if result.by_another_run else ""
+    )
     say(
         f"wrote {len(result.done)} image(s) to {zarr_path or out}{rate} in mode {result.mode}{why}; skipped "
-        f"{len(result.skipped)} (done already); failed {len(result.failed)}"
+        f"{len(result.skipped)} (done already){others}; failed {len(result.failed)}"
     )
-    if result.failed:
+    if result.failed or result.kept:
         raise typer.Exit(1)
 
 
