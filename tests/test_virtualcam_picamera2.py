@@ -260,6 +260,7 @@ def test_install_puts_the_virtual_camera_in_place_from_python(tmp_path):
 # network server, and run on a single camera as picamera2's own test runner runs them.
 PICAMERA2_SCRIPTS = (
     "examples/capture_average.py",
+    "examples/capture_dng_to_buffer.py",
     "examples/capture_headless.py",
     "examples/capture_to_buffer.py",
     "examples/exif_custom.py",

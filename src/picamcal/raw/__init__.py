@@ -16,9 +16,18 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import PicamcalError, PicamcalWarning, RawFormatError
-from ..sensors import SENSORS, given_sensor, or_list, sensors_of_size
+from ..sensors import SENSORS, given_sensor, sensors_of_size, size_note
 from .brcm import is_brcm, is_jpeg, read_brcm, write_brcm
-from .dng import GainMap, flat_field_gain_map, is_dng, read_dng, read_gain_map, write_dng, write_linear_dng
+from .dng import (
+    GainMap,
+    flat_field_gain_map,
+    is_dng,
+    read_dng,
+    read_gain_map,
+    with_sensor_black_level,
+    write_dng,
+    write_linear_dng,
+)
 from .headless import HEADLESS_SUFFIXES, headless_hint, read_headless
 from .model import PATTERNS, RawImage, given_black_level, require_colour_sensor, sensor_black_level, site_channels
 from .npy import file_head, is_npy
@@ -201,6 +210,7 @@ def read_raw(
             raw = override(raw, pattern=pattern, black_level=black_level)
     if raw.sensor is None:
         raw = _by_size(raw)
+    raw = with_sensor_black_level(raw)  # a DNG without a BlackLevel tag, of a known sensor: the sensor's, said
     if verify:
         for problem in check_metadata(raw):
             warnings.warn(f"{path}: {problem}", PicamcalWarning, stacklevel=2)

@@ -11,6 +11,7 @@ informative: a malformed one is left out with a warning.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -22,8 +23,8 @@ import numpy as np
 from ..._json import parse_json
 from ...errors import PicamcalWarning, RawFormatError
 from ...limits import check_size, require_regular_file
-from ...sensors import find_sensor_name
-from ..model import METADATA_KINDS, PATTERNS, RawImage
+from ...sensors import SENSORS, find_sensor_name
+from ..model import METADATA_KINDS, PATTERNS, RawImage, sensor_black_level
 from .libraw import decode
 from .plain import Layout, is_plain, read_strips
 from .tags import (
@@ -381,3 +382,43 @@ def read_dng(path: str | os.PathLike[str], *, expected_shape: Sequence[int] | No
     )
     bit_depth = max(found.white.bit_length(), 8)
     return RawImage(found.bayer, found.pattern, found.black, found.white, bit_depth, sensor, meta)
+
+
+def with_sensor_black_level(raw: RawImage, stacklevel: int = 2) -> RawImage:
+    """A DNG without a BlackLevel tag, of a registry sensor, at that sensor's black level, said in a warning.
+
+    Without the tag a DNG's black level is 0 (the DNG default, as LibRaw reads it), but every sensor of the registry
+    has a pedestal: :func:`picamcal.raw.read_raw` gives a DNG that names its sensor (picamera2's later DNGs have
+    its name as Model), or whose sensor is told by its size or given, the registry's level at its bit depth
+    (``metadata["black_level_source"]`` ``"registry"``); :func:`read_dng` reads the file as LibRaw does. The
+    warning names the sensor and the level, not the file: a folder of such files gives it once. A level given
+    (``metadata["declared_black_level"]``), a DNG with the tag and one of an unknown sensor are returned as they
+    are.
+
+    Examples
+    --------
+    >>> bayer = np.full((4, 4), 70, np.uint16)
+    >>> dng = RawImage(bayer, "BGGR", 0, 1023, 10, "imx219", {"black_level_source": "DNG default"})
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     raw = with_sensor_black_level(dng)
+    >>> raw.black_level, raw.metadata["black_level_source"]
+    ((64.0, 64.0, 64.0, 64.0), 'registry')
+    >>> print(caught[0].message)
+    DNGs of the imx219 without a BlackLevel tag are taken at the sensor's black level, 64 DN at 10 bits (not the
+    DNG default, 0): give --black-level N if theirs is another
+    """
+    meta = raw.metadata
+    if meta.get("black_level_source") != "DNG default" or "declared_black_level" in meta:
+        return raw
+    sensor = SENSORS.get((raw.sensor or "").lower())
+    if sensor is None or sensor.monochrome:
+        return raw
+    black, source = sensor_black_level(sensor.name, raw.bit_depth)
+    warnings.warn(
+        f"DNGs of the {sensor.name} without a BlackLevel tag are taken at the sensor's black level, {black[0]:g} DN "
+        f"at {raw.bit_depth} bits (not the DNG default, 0): give --black-level N if theirs is another",
+        PicamcalWarning,
+        stacklevel=stacklevel,
+    )
+    return dataclasses.replace(raw, black_level=black, metadata={**meta, "black_level_source": source})
