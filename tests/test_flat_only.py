@@ -13,6 +13,7 @@ import pytest
 from picamcal import (
     CalibrationFileError,
     CalibrationInputError,
+    PicamcalWarning,
     RawFormatError,
     RawImage,
     calibrate,
@@ -249,7 +250,7 @@ def test_a_folder_of_white_frames_and_a_black(camera, tmp_path):
     out = tmp_path / "cal.npz"
     result = run("calibrate", str(folder), "--out", str(out))
     assert result.returncode == 0, result.stderr
-    assert "a flat field from the white alone" in result.stderr
+    assert "a flat field from the white and the dark frame" in result.stderr  # not "alone": a black was given
     line = next(x for x in result.stderr.splitlines() if x.startswith("white: 3 frames averaged"))
     single, average = (float(v) for v in re.findall(r"([\d.]+) DN", line))
     assert average == pytest.approx(single / np.sqrt(3), abs=0.01) and 10 < single < 14  # 11.75 DN by the model
@@ -358,13 +359,15 @@ def test_unknown_black_levels_are_taken_from_the_dark_frame(camera, clean):
             rtol=1e-6,
         )
     # Without a dark frame there is no black level to take: the standard one-line error, naming the file.
-    with pytest.raises(RawFormatError, match=r"dump\.raw: no black level: .*--black-level N, a dark frame"):
+    with pytest.raises(RawFormatError, match=r"dump\.raw: no black level: .*--black-level N, --sensor NAME or a dark"):
         calibrate(white)
+    # A calibration whose references gave their level (64 DN) lends it to an image that gives none, with a warning.
     without_dark = calibrate(refs["white"])
     assert without_dark.black_level_source == "references"
     for binned in (True, False):
-        with pytest.raises(RawFormatError, match=r"dump\.raw: no black level"):
-            correct(_without_black_level(dim), without_dark, "flat", binned=binned)
+        with pytest.warns(PicamcalWarning, match=r"corrected with the calibration's, 64 DN \(from its references\)"):
+            lent = correct(_without_black_level(dim), without_dark, "flat", binned=binned)
+        np.testing.assert_allclose(lent, correct(dim, without_dark, "flat", binned=binned), rtol=1e-6)
 
 
 def test_old_full_files_load_and_flat_files_are_validated(clean, tmp_path):

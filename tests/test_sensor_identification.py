@@ -159,7 +159,7 @@ def test_a_size_several_sensors_share_is_not_guessed(tmp_path):
         require_black_level(raw)  # where a black level is needed, the error lists them too
     assert str(info.value) == (
         f"{dump}: no black level: the file records none, and a 1920x1080 frame could be from the imx290, imx462, "
-        "se327m12, imx327 or imx662; give --sensor NAME (one of them), --black-level N or a dark frame (--black FILE)"
+        "se327m12, imx327 or imx662; give --sensor NAME (one of them) or --black-level N"
     )
     told = read_raw(dump, **headless, sensor="imx462")
     assert told.sensor == "imx462" and told.black_level == (240.0,) * 4  # imx462.json 3840 on the 16-bit scale
@@ -220,7 +220,7 @@ def test_a_sensor_outside_the_registry_is_warned_of_once_for_all_the_files(refs,
     captured = capsys.readouterr()
     assert captured.err.splitlines() == [
         "picamcal: warning: sensor 'imx298' is not in picamcal's registry: picamcal knows nothing of it (no black "
-        "level, no stock tuning file: exports need --base); if it is the imx296 or imx290, give that name"
+        "level, no stock tuning file); if it is the imx296 or imx290, give that name"
     ]
     assert captured.out.count('"sensor": "imx298"') == 2
 

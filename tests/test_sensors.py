@@ -135,13 +135,24 @@ def test_every_sensor_with_a_bundled_stock_tuning_file_has_a_registry_entry_with
         ((804, 704), ("vd55g1",)),
         ((4056, 3040), ("imx477", "imx378", "imx500")),
         ((2028, 1520), ("imx477", "imx378", "imx500")),
-        ((1920, 1080), ("imx290", "imx462", "se327m12", "imx327", "imx662")),
+        # Cropped modes of the drivers count: the IMX219's and the OV5647's 1920x1080, the HQ camera's 1332x990.
+        ((1920, 1080), ("ov5647", "imx219", "imx290", "imx462", "se327m12", "imx327", "imx662")),
+        ((1332, 990), ("imx477",)),
+        ((640, 480), ("ov5647", "imx219")),
         ((1280, 800), ()),  # the OV9281's: monochrome only
         ((320, 240), ()),
     ],
 )
 def test_the_sensors_of_a_frame_size(size, names):
     assert sensors_of_size(*size) == names
+
+
+def test_a_frame_deeper_than_a_sensor_s_deepest_mode_is_not_its():
+    """A 1920x1080 SBGGR10 dump may be the IMX219's crop, its most common source; a 12-bit one cannot (10 bits at
+    most), and 16 bits is the Pi 5's container for any depth."""
+    assert "imx219" in sensors_of_size(1920, 1080, 10)
+    assert sensors_of_size(1920, 1080, 12) == ("imx290", "imx462", "se327m12", "imx327", "imx662")
+    assert sensors_of_size(1920, 1080, 16) == sensors_of_size(1920, 1080)
 
 
 @pytest.mark.parametrize(
@@ -196,7 +207,7 @@ def test_a_sensor_outside_the_registry_is_kept_with_one_warning(value, neighbour
     assert len(caught) == 1
     message = str(caught[0].message)
     assert message.startswith(f"sensor {value.lower()!r} is not in picamcal's registry: picamcal knows nothing of it")
-    assert "no black level, no stock tuning file: exports need --base" in message
+    assert "(no black level, no stock tuning file)" in message
     assert (f"if it is the {neighbours}, give that name" in message) == (neighbours is not None)
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -75,10 +75,12 @@ def _suffix_and_stem(target: Path, suffix: str | None) -> tuple[str, str]:
 def make_temporary(target: str | os.PathLike[str], *, folder: bool = False, suffix: str | None = None) -> Path:
     """Create a new temporary file (or ``folder``) beside ``target`` with the permissions of an ordinary new one.
 
+    The folders ``target`` lies in are created first where they are missing (:func:`make_parents`).
+
     Raises
     ------
     OutputError
-        The folder cannot be written (missing, read-only, full).
+        The folder cannot be created or written (read-only, full, a file in its place).
 
     Examples
     --------
@@ -86,6 +88,7 @@ def make_temporary(target: str | os.PathLike[str], *, folder: bool = False, suff
     >>> build.is_dir(), build.name.startswith(".report.picamcal-")
     (True, True)
     """
+    make_parents(target)
     for _ in range(100):  # a clash of 32 random bits with this process's own names: try another
         path = temporary_name(target, suffix)
         try:
@@ -99,6 +102,28 @@ def make_temporary(target: str | os.PathLike[str], *, folder: bool = False, suff
             raise OutputError(f"cannot write here: {exc.strerror or exc}", Path(target)) from exc
         return path
     raise OutputError("cannot make a temporary name here", Path(target))
+
+
+def make_parents(target: str | os.PathLike[str]) -> None:
+    """Create the folders ``target`` lies in that are missing (``--out newdir/cal.npz``); never removes anything.
+
+    Raises
+    ------
+    OutputError
+        A folder cannot be created: a file of its name is in the way, or its parent cannot be written.
+
+    Examples
+    --------
+    >>> make_parents("runs/2024-05/cal.npz")
+    >>> Path("runs/2024-05").is_dir(), Path("runs/2024-05/cal.npz").exists()
+    (True, False)
+    """
+    parent = Path(target).parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        what = "a file is in the way" if isinstance(exc, (FileExistsError, NotADirectoryError)) else exc.strerror
+        raise OutputError(f"cannot create its folder {parent}: {what or exc}", Path(target)) from exc
 
 
 def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:

@@ -52,6 +52,9 @@ REFUSE_WHITE_FRACTION = 0.05
 REFUSE_CONDITION = 100.0
 #: The largest smoothing, as a fraction of the bin grid's shorter side (see :func:`check_smoothing`).
 MAX_SMOOTHING_FRACTION = 0.25
+#: A dark frame whose exposure time or gain differs from the white's by more than this fraction is warned of
+#: (:func:`check_dark_settings`).
+DARK_SETTINGS_TOLERANCE = 0.10
 
 RawLike = RawImage | str | os.PathLike
 #: A reference role: one frame, or several frames of the same scene (a sequence or any iterable) to average.
@@ -89,6 +92,43 @@ def _check_like(raw: RawImage, template: RawImage, what: str) -> None:
         raise CalibrationInputError(
             f"Bayer pattern {raw.pattern} differs from the {what}'s {template.pattern}", raw.source
         )
+
+
+def check_dark_settings(dark: RawImage, white: RawImage) -> None:
+    """Warn if the dark frame was taken at another exposure time or gain than the white, where both files say.
+
+    The dark frame is subtracted from the references as their black: the pedestal, the dark current (which grows
+    with the exposure) and the offsets (which change with the gain). Taken at other settings it stands for another
+    black. More than :data:`DARK_SETTINGS_TOLERANCE` apart (files round their settings by far less) is said in a
+    ``PicamcalWarning`` naming the dark frame's file; the gain is the analogue gain, else the ISO.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> white = RawImage(np.zeros((4, 4), np.uint16), "RGGB", 64, 1023, 10, None, {"exposure_time_s": 0.01})
+    >>> dark = RawImage(white.bayer, "RGGB", 64, 1023, 10, None, {"exposure_time_s": 0.001, "path": "dark.dng"})
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     check_dark_settings(dark, white)
+    >>> print(caught[0].message)
+    dark.dng: the dark frame's exposure time, 1 ms, differs from the white's, 10 ms, by more than 10 %: ...
+    """
+    settings = [("exposure time", "exposure_time_s", 1e3, " ms")]
+    gains = "analogue_gain" if all(raw.metadata.get("analogue_gain") for raw in (dark, white)) else "iso"
+    settings.append(("analogue gain" if gains == "analogue_gain" else "ISO", gains, 1.0, ""))
+    for what, key, scale, unit in settings:
+        pair = [raw.metadata.get(key) for raw in (dark, white)]
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in pair):
+            continue
+        if abs(pair[0] - pair[1]) > DARK_SETTINGS_TOLERANCE * pair[1]:
+            values = [f"{scale * v:.4g}{unit}" for v in pair]
+            warnings.warn(
+                f"{dark.source}: the dark frame's {what}, {values[0]}, differs from the white's, {values[1]}, by more "
+                f"than {100 * DARK_SETTINGS_TOLERANCE:g} %: its black (dark current, offsets) is not the white's; take "
+                "the dark frame at the white's settings",
+                PicamcalWarning,
+                stacklevel=4,
+            )
 
 
 def _check_clipping(white: RawImage, clipped: int) -> None:
@@ -561,6 +601,7 @@ def _binned_responses(
     lights = refs[:-1] if has_black else refs
     if has_black:
         dark = refs[-1]
+        check_dark_settings(dark.raw, white)
         if np.median(dark.sites) >= np.median(refs[0].sites):
             raise CalibrationInputError(
                 f"black frame (median {np.median(dark.sites):.0f} DN) is not darker than the white reference "
@@ -571,7 +612,7 @@ def _binned_responses(
         black_level = tuple(float(v) for v in np.median(dark.sites.reshape(-1, 4), axis=0))
     else:
         for ref in lights:
-            require_black_level(ref.raw)
+            require_black_level(ref.raw, dark_frame="--black FILE")
         black_sites = [np.broadcast_to(np.asarray(ref.raw.black_level), ref.sites.shape) for ref in lights]
         black_level = white.black_level
     black = float(np.median(black_level))

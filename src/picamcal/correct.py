@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -30,7 +31,7 @@ from .bayer import bin_centres, bin_sites, block_mean, centre_region, sites_to_c
 from .calibration import Calibration
 from .calibration.resample import CROP_TOLERANCE, calibration_for_raw
 from .ckernel import correct_c
-from .errors import CalibrationFileError, KernelBuildError, PicamcalError
+from .errors import CalibrationFileError, KernelBuildError, PicamcalError, PicamcalWarning
 from .geometry import SensorMode, image_to_image, sensor_area
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from .kernels import (
@@ -43,7 +44,7 @@ from .kernels import (
     output_array,
 )
 from .modes import Mode, best_mode
-from .raw.model import RawImage, require_black_level, site_channels
+from .raw.model import RawImage, site_channels
 from .raw.processed import ProcessedImage
 
 #: Rows per block when applying the matrix field, to bound memory (9 float32 planes per block).
@@ -52,6 +53,9 @@ _ROW_BLOCK = 256
 ENGINES = ("auto", "c", "numba", "numpy", "reference")
 #: How many (calibration, mode, size) correction fields :func:`correct` keeps.
 _FIELDS_CACHE_SIZE = 4
+#: A frame with more of its pixels at the white level than this fraction is warned of (:func:`warn_if_clipped`): a
+#: highlight or two clip a few pixels in a thousand; beyond one in a hundred the exposure was too long for the scene.
+CLIPPED_WARNING_FRACTION = 0.01
 #: uint16 code of the white reference (value 1.0) in :func:`correct`'s ``dtype=np.uint16`` output and the
 #: ``uint16-tiff`` files: a power of two, so code / 32768 is exact and values up to twice the white keep headroom.
 UINT16_WHITE = 32768
@@ -195,33 +199,72 @@ def _cached_fields(calibration: Calibration, mode: Mode, height: int, width: int
 
 
 def with_known_black_level(raw: RawImage, calibration: Calibration) -> RawImage:
-    """``raw`` itself if its black level is known, else ``raw`` with the calibration's dark-frame black level.
+    """``raw`` itself if its black level is known, else ``raw`` with the calibration's black level, said in a warning.
 
-    A raw image whose black level is unknown (NaN: a headless dump of a sensor picamcal does not know) takes
-    the black level the calibration measured from its dark frame (:attr:`Calibration.black_level_source`); the
-    image must then be taken at the dark frame's settings. Without a dark-frame level it is an error (one line
-    naming the three ways to give a black level).
-
-    Raises
-    ------
-    RawFormatError
-        The black level is unknown and the calibration has none from a dark frame.
+    A raw image whose black level is unknown (NaN: a headless dump of a sensor picamcal does not know) is of the
+    calibration's sensor, whose black level the calibration holds: measured from its dark frame, or its references'
+    (given with ``--black-level`` when they were dumps too), scaled to the image's bit depth. The image must then be
+    taken at the calibration's settings, which the warning says. The warning does not name the file: every frame of
+    a batch gives the same one, shown once.
 
     Examples
     --------
-    >>> import dataclasses
+    >>> import dataclasses, warnings
     >>> from picamcal.simulate import make_camera, simulate_references
     >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
     >>> cal = picamcal.calibrate(**refs)  # with a dark frame
     >>> dump = dataclasses.replace(refs["white"], black_level=(np.nan,) * 4)  # a headless dump: level unknown
-    >>> [round(level) for level in with_known_black_level(dump, cal).black_level]
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     print([round(level) for level in with_known_black_level(dump, cal).black_level])
     [64, 64, 64, 64]
+    >>> print(caught[0].message)
+    frames that give no black level are corrected with the calibration's, 64 DN (from its dark frame): right if ...
     """
     if np.all(np.isfinite(raw.black_level)):
         return raw
-    if calibration.black_level_source != "dark frame":
-        require_black_level(raw)
-    return dataclasses.replace(raw, black_level=calibration.black_level)
+    black = np.asarray(calibration.black_level, dtype=float)
+    if calibration.bit_depth and calibration.bit_depth != raw.bit_depth:
+        black = black * 2.0 ** (raw.bit_depth - calibration.bit_depth)
+    each = [f"{v:.3g}" for v in black]  # to 0.1 DN or better: a dark frame's per-site medians differ by less
+    levels = each[0] if len(set(each)) == 1 else ",".join(each)
+    source = "its dark frame" if calibration.black_level_source == "dark frame" else "its references"
+    warnings.warn(
+        f"frames that give no black level are corrected with the calibration's, {levels} DN (from {source}): right "
+        "if they were taken at its settings; else give --black-level",
+        PicamcalWarning,
+        stacklevel=2,
+    )
+    return dataclasses.replace(raw, black_level=tuple(float(v) for v in black))
+
+
+def warn_if_clipped(raw: RawImage) -> float:
+    """Warn, naming the file, when more than :data:`CLIPPED_WARNING_FRACTION` of ``raw``'s pixels are at its white
+    level; return that fraction.
+
+    A clipped pixel's value is a lower bound: neither the flat field nor the unmixing can give its true value and
+    colour, and its neighbours' demosaiced colours inherit the error.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> bayer = np.full((4, 4), 1023, np.uint16)
+    >>> bayer[:2] = 500  # half the frame clipped
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     fraction = warn_if_clipped(RawImage(bayer, "BGGR", 64, 1023, 10, None, {"path": "scan.dng"}))
+    >>> fraction, str(caught[0].message)
+    (0.5, 'scan.dng: 50 % of its pixels are at the white level (1023): clipped, they cannot be corrected; ...')
+    """
+    fraction = int(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
+    if fraction > CLIPPED_WARNING_FRACTION:
+        warnings.warn(
+            f"{raw.source}: {100 * fraction:.3g} % of its pixels are at the white level ({raw.white_level}): clipped, "
+            "they cannot be corrected; reduce the exposure",
+            PicamcalWarning,
+            stacklevel=3,
+        )
+    return fraction
 
 
 def choose_mode(calibration: Calibration, mode: str | Mode | None = None) -> Mode:
@@ -266,7 +309,7 @@ def correct(
         The image, from the calibration's sensor: of its sensor mode, or of any mode inside the calibration's crop
         (binned, cropped, flipped: the calibration's fields are taken at the frame's sensor positions,
         :func:`picamcal.calibration.resample.calibration_for_raw`). An unknown (NaN) black level takes the
-        calibration's dark-frame level (:func:`with_known_black_level`).
+        calibration's (:func:`with_known_black_level`).
     calibration : Calibration
         From :func:`picamcal.calibrate` or :func:`picamcal.load_calibration`.
     mode : {"centre", "flat", "pure", "uncorrected"} or Mode, optional
@@ -334,6 +377,7 @@ def correct(
     calibration = calibration_for_raw(calibration, raw, geometry)
     matrices = calibration.matrices(mode)
     raw = with_known_black_level(raw, calibration)
+    warn_if_clipped(raw)
     if binned:
         if out is not None or to_codes:
             raise ValueError("out and dtype take a full-resolution image; binned=True returns a new float32 array")

@@ -331,9 +331,13 @@ def find_sensor_name(text: str | None) -> str | None:
 _BY_LENGTH = sorted(SENSORS, key=len, reverse=True)
 
 
-def sensors_of_size(width: int, height: int) -> tuple[str, ...]:
-    """The colour sensors of the registry whose frames have this size: their full-resolution mode, or a binned mode
-    of the whole array (:attr:`Sensor.binned_modes`), in registry order.
+def sensors_of_size(width: int, height: int, bit_depth: int | None = None) -> tuple[str, ...]:
+    """The colour sensors of the registry whose frames have this size: their full-resolution mode, a binned mode of
+    the whole array (:attr:`Sensor.binned_modes`) or any mode of their driver, cropped ones included
+    (:data:`DRIVER_MODES`: the IMX219's 1920x1080 is a crop), in registry order.
+
+    With ``bit_depth``, a sensor whose deepest mode has fewer bits is left out (a 12-bit frame is no IMX219's); 16
+    bits is the Pi 5's container for every depth, and leaves none out.
 
     One name identifies a frame that does not name its sensor (picamera2's DNGs, headless dumps); several are the
     sensors it could be. A monochrome variant is never among them: it shares its colour sensor's sizes, and
@@ -345,11 +349,43 @@ def sensors_of_size(width: int, height: int) -> tuple[str, ...]:
     (('imx219',), ('imx296',))
     >>> sensors_of_size(4056, 3040), sensors_of_size(320, 240)
     (('imx477', 'imx378', 'imx500'), ())
+    >>> sensors_of_size(1920, 1080, 10)
+    ('ov5647', 'imx219', 'imx290', 'imx462', 'se327m12', 'imx327', 'imx662')
+    >>> sensors_of_size(1920, 1080, 12), sensors_of_size(1332, 990)
+    (('imx290', 'imx462', 'se327m12', 'imx327', 'imx662'), ('imx477',))
     """
-    return tuple(
-        s.name
-        for s in SENSORS.values()
-        if not s.monochrome and ((s.width, s.height) == (width, height) or (width, height) in s.binned_modes)
+    size = (width, height)
+
+    def gives(sensor: Sensor) -> bool:
+        if sensor.monochrome or (bit_depth is not None and bit_depth < 16 and sensor.bit_depth < bit_depth):
+            return False
+        sizes = (sensor.size, *sensor.binned_modes, *((m.width, m.height) for m in sensor_modes(sensor.name)))
+        return size in sizes
+
+    return tuple(s.name for s in SENSORS.values() if gives(s))
+
+
+def size_note(names: tuple[str, ...] | list[str], width: int, height: int) -> str:
+    """What is said of frames of ``width`` x ``height`` that do not name their sensor, by the registry sensors of
+    that size (:func:`sensors_of_size`): taken as the one, or could be from several. It names no file: every frame
+    of a folder or a batch gives the same one, shown once.
+
+    Examples
+    --------
+    >>> size_note(("imx296",), 1456, 1088)
+    'frames of 1456x1088 that do not name their sensor are taken as the imx296, the one sensor of that size ...'
+    >>> size_note(("imx477", "imx378"), 4056, 3040)
+    'frames of 4056x3040 that do not name their sensor could be from the imx477 or imx378: give --sensor NAME ...'
+    """
+    size = f"{width}x{height}"
+    if len(names) == 1:
+        return (
+            f"frames of {size} that do not name their sensor are taken as the {names[0]}, the one sensor of that "
+            "size (give --sensor if it is another)"
+        )
+    return (
+        f"frames of {size} that do not name their sensor could be from the {or_list(names)}: give --sensor NAME to "
+        "say which"
     )
 
 
@@ -407,7 +443,7 @@ def given_sensor(value: object, *, warn: bool = True) -> str:
         hint = f"; if it is the {or_list(others)}, give that name" if others else ""
         warnings.warn(
             f"sensor {text!r} is not in picamcal's registry: picamcal knows nothing of it (no black level, no stock "
-            f"tuning file: exports need --base){hint}",
+            f"tuning file){hint}",
             PicamcalWarning,
             stacklevel=2,
         )

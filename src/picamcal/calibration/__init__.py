@@ -134,8 +134,9 @@ class Calibration:
     black_level : 4 floats
         Per-site black level (DN) the calibration stands for.
     black_level_source : str
-        ``"dark frame"`` (then an image whose black level is unknown takes :attr:`black_level`) or
-        ``"references"``.
+        ``"dark frame"`` or ``"references"`` (given by their files, the registry or ``--black-level``); an image
+        whose black level is unknown takes :attr:`black_level` either way
+        (:func:`picamcal.correct.with_known_black_level`).
     white_level : float or None
         White level (DN) of the references.
     bit_depth : int or None

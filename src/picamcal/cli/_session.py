@@ -29,8 +29,9 @@ class _Held:
 
     @property
     def warnings(self) -> list[str]:
-        """picamcal's own warnings; other libraries' are not picamcal's to print."""
-        return [str(w.message) for w in self.caught if issubclass(w.category, PicamcalWarning)]
+        """picamcal's own warnings, each once (a batch's files give the same one each); other libraries' are not
+        picamcal's to print."""
+        return list(dict.fromkeys(str(w.message) for w in self.caught if issubclass(w.category, PicamcalWarning)))
 
     def release(self) -> None:
         """Print what was held back, when the command did not fail."""

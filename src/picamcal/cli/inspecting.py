@@ -36,11 +36,14 @@ def inspect_cmd(
     frame: FrameOption = None,
     sensor: RawSensorOption = None,
 ) -> None:
-    """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, exposure; and what looks wrong.
+    """Show what each file is: format, sensor, size, Bayer order, bit depth, levels, signal, exposure; and what looks
+    wrong.
 
-    Every file is listed, also those that are not images (sidecars, calibrations, notes: "not an image") and those
-    that cannot be read (with the reason); the exit status is 1 if any could not be read. A folder with no images,
-    or one file that cannot be read or is not an image, is one error line (exit status 2), as in every other command.
+    The signal is the median DN over black ("dark" for a frame at black: a dark frame). Every file is listed, also
+    those that are not images (sidecars, calibrations, notes: "not an image") and those that cannot be read (with
+    the reason); the exit status is 1 if any could not be read. A folder that is empty or holds only files that are
+    not images, or one file that cannot be read or is not an image, is one error line (exit status 2), as in every
+    other command.
     """
     from ..describe import inspect_files
 
@@ -81,6 +84,7 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
         "bits",
         "black",
         "white",
+        "signal",
         "exposure",
         "gain",
     ]
@@ -101,14 +105,16 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
             r["bit_depth"],
             _levels(r.get("black_level")) if r["raw"] else "-",
             r.get("white_level", "-"),
+            _signal(r),
             _figure(r.get("exposure_time_s"), 1e3, " ms"),
-            _figure(r.get("analogue_gain")),
+            _gain(r),
             *([r.get("frames", "-")] if frames else []),
         ]
         # Text, not markup: a file's name or metadata may hold brackets that rich would take for markup.
         table.add_row(*(Text(str(cell)) for cell in row))
     stdout = stdout_console()
     stdout.print(table)
+    said: dict[str, list[str]] = {}  # each note or warning, with the files that gave it, in the order first given
     for r in records:
         name = Path(r["path"]).name
         if "error" in r:
@@ -118,7 +124,11 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
         if "width" not in r and "sensor_mode" in r:  # a calibration: where on the sensor it was taken
             stdout.print(f"{name}: sensor mode {r['sensor_mode']}", markup=False, highlight=False, soft_wrap=True)
         for warning in [*r.get("notes", []), *r["warnings"]]:
-            stdout.print(f"{name}: {warning}", style="yellow", markup=False, highlight=False, soft_wrap=True)
+            said.setdefault(warning, []).append(name)
+    # Once each: a folder of frames of one size gives every one the same "taken as the imx296".
+    for warning, names in said.items():
+        who = names[0] if len(names) == 1 else f"{names[0]} and {len(names) - 1} more"
+        stdout.print(f"{who}: {warning}", style="yellow", markup=False, highlight=False, soft_wrap=True)
 
 
 def _mode(geometry: dict[str, Any] | None) -> str:
@@ -138,6 +148,24 @@ def _levels(levels: list[float] | None) -> str:
     if not all(math.isfinite(v) for v in levels):  # the notes below the table say why
         return "unknown"
     return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
+
+
+def _signal(record: dict[str, Any]) -> str:
+    """The median DN over black, ``dark`` for a dark frame; ``?`` where the black level is unknown."""
+    if not record["raw"]:
+        return "-"
+    signal = record.get("signal_dn")
+    if signal is None:
+        return "?"
+    text = f"{signal:.0f}" if abs(signal) >= 10 else f"{signal:.1f}"
+    return f"{text} dark" if record.get("dark") else text
+
+
+def _gain(record: dict[str, Any]) -> str:
+    """The analogue gain, else the ISO the file gives (legacy JPEG+raw and DNG files say that instead)."""
+    if record.get("analogue_gain"):
+        return _figure(record["analogue_gain"])
+    return f"ISO {_figure(record['iso'])}" if record.get("iso") else "-"
 
 
 def _figure(value: Any, scale: float = 1.0, unit: str = "") -> str:

@@ -234,24 +234,13 @@ def _by_size(raw: RawImage) -> RawImage:
 
     The warning does not name the file: every frame of a folder or a batch gives the same one, shown once.
     """
-    names = sensors_of_size(raw.width, raw.height)
-    size = f"{raw.width}x{raw.height}"
+    names = sensors_of_size(raw.width, raw.height, raw.bit_depth)
+    if names:
+        warnings.warn(size_note(names, raw.width, raw.height), PicamcalWarning, stacklevel=3)
     if len(names) == 1:
-        warnings.warn(
-            f"frames of {size} that do not name their sensor are taken as the {names[0]}, the one sensor of that "
-            "size (give --sensor if it is another)",
-            PicamcalWarning,
-            stacklevel=3,
-        )
         raw = _with_sensor(raw, names[0])
         raw.metadata["sensor_source"] = "size"
     elif names:
-        warnings.warn(
-            f"frames of {size} that do not name their sensor could be from the {or_list(names)}: give --sensor "
-            "NAME to say which",
-            PicamcalWarning,
-            stacklevel=3,
-        )
         raw = dataclasses.replace(raw, metadata={**raw.metadata, "sensor_candidates": list(names)})
     return raw
 

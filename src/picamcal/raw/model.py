@@ -87,12 +87,14 @@ def site_channels(pattern: str) -> np.ndarray:
     return np.array([CHANNELS.index(c) for c in pattern], dtype=np.intp)
 
 
-def require_black_level(raw: RawImage) -> None:
+def require_black_level(raw: RawImage, dark_frame: str | None = None) -> None:
     """Raise if ``raw``'s black level is unknown (NaN): the file records none and its sensor is not known.
 
     Never take 0 silently: a wrong black level skews every ratio the calibration measures. The message says what
-    can give it: a sensor outside the registry (``--sensor imx298``) has no known level, so only ``--black-level`` or
-    a dark frame; a frame whose size several registry sensors share names them.
+    can give it, in options every command that reads raw files has: a sensor outside the registry (``--sensor
+    imx298``) has no known level, so only ``--black-level``; a frame whose size several registry sensors share names
+    them. ``dark_frame`` is how the caller takes a dark frame, where it takes one (calibrate: ``"--black FILE"``);
+    it is named too.
 
     Examples
     --------
@@ -100,25 +102,26 @@ def require_black_level(raw: RawImage) -> None:
     >>> require_black_level(RawImage(np.zeros((2, 2), np.uint16), "RGGB", float("nan"), 1023, 10, "imx298"))
     Traceback (most recent call last):
     ...
-    picamcal.errors.RawFormatError: <array>: no black level: the file records none, and picamcal does not know ...
+    picamcal.errors.RawFormatError: <array>: no black level: ... a sensor outside its registry; give --black-level N
     """
     if np.all(np.isfinite(raw.black_level)):
         return
     candidates = raw.metadata.get("sensor_candidates")
+    dark = [f"a dark frame ({dark_frame})"] if dark_frame else []
     if raw.sensor is not None and raw.sensor not in SENSORS:
         problem = (
             f"no black level: the file records none, and picamcal does not know the black level of the {raw.sensor}, "
-            "a sensor outside its registry; give --black-level N or a dark frame (--black FILE)"
+            f"a sensor outside its registry; give {or_list(['--black-level N', *dark])}"
         )
     elif raw.sensor is None and candidates:
         problem = (
             f"no black level: the file records none, and a {raw.width}x{raw.height} frame could be from the "
-            f"{or_list(candidates)}; give --sensor NAME (one of them), --black-level N or a dark frame (--black FILE)"
+            f"{or_list(candidates)}; give {or_list(['--sensor NAME (one of them)', '--black-level N', *dark])}"
         )
     else:
         problem = (
             "no black level: the file records none and its sensor is not in picamcal's registry; give "
-            "--black-level N, a dark frame (--black FILE) or --sensor NAME"
+            f"{or_list(['--black-level N', '--sensor NAME', *dark])}"
         )
     raise RawFormatError(problem, raw.source)
 

@@ -112,5 +112,5 @@ def _default_black_level(raw: RawImage) -> list[str]:
     return [
         f"black level 0 is the DNG default (the file has no BlackLevel tag), but no pixel is darker than {low:g} DN"
         f"{each}: if the sensor's black level is {low:g} DN (a dark frame shows it; on a lit frame it is lower), pass "
-        f"--black-level {low:g}, or give a dark frame to calibrate (--black FILE)"
+        f"--black-level {low:g}"
     ]

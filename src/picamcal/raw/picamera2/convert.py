@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from ...errors import RawFormatError
+from ...errors import PicamcalWarning, RawFormatError
+from ...sensors import get_sensor, sensor_modes, sensors_of_size, size_note
 from ..model import RawImage
 from ..packing import pack
-from .buffer import check_layout, decode
+from .buffer import Layout, check_layout, decode
 from .formats import UNICAM_ALIGN, RawFormat
 from .metadata import (
     SENSOR_BLACK_LEVEL_SITES,
@@ -54,7 +57,10 @@ def from_picamera2(
         ``Lux`` and ``SensorTimestamp`` are kept as ``exposure_time_s``, ``analogue_gain``, ... in
         ``RawImage.metadata``.
     sensor : str, optional
-        Sensor name; by default found in ``config["model"]``.
+        Sensor name; by default found in ``config["model"]``, else the registry's one sensor of the frame's size
+        (with a ``PicamcalWarning``, as :func:`picamcal.read_raw` takes a file's; a size several sensors share puts
+        them in ``metadata["sensor_candidates"]``). The sensor's bit depth (``config["sensor"]["bit_depth"]``, else
+        that of the registry sensor's mode of this size) is that of the data in a 16-bit buffer.
     source : str or path-like
         What to call the data in messages and ``metadata["path"]``.
 
@@ -100,6 +106,10 @@ def from_picamera2(
     meta: dict[str, Any] = {"format": "picamera2", "path": source, "raw_format": layout.name, "stride": layout.stride}
     if model is not None:
         meta["model"] = model
+    if name is None and model is None:  # nothing names it: the registry's one sensor of this size, if one
+        name = _sensor_by_size(layout, meta)
+    if name is not None and layout.sensor_bits is None and layout.bits == 16:
+        layout = dataclasses.replace(layout, sensor_bits=_mode_bits(name, layout.width, layout.height))
     if layout.sensor_bits is not None:
         meta["sensor_bit_depth"] = layout.sensor_bits
     if layout.packing == "pisp":
@@ -113,6 +123,28 @@ def from_picamera2(
         return RawImage(bayer, layout.pattern, black, white, bit_depth, name, meta)
     except RawFormatError as exc:
         raise RawFormatError(exc.problem, source) from None
+
+
+def _sensor_by_size(layout: Layout, meta: dict[str, Any]) -> str | None:
+    """The registry sensor a buffer of this size and format comes from when only one does (said in a warning), as
+    :func:`picamcal.read_raw` takes a file's; several are put in ``meta["sensor_candidates"]``. The bits of an
+    unpacked 16-bit or PiSP buffer say nothing of the sensor's."""
+    names = sensors_of_size(layout.width, layout.height, layout.sensor_bits or layout.bits)
+    if names:
+        warnings.warn(size_note(names, layout.width, layout.height), PicamcalWarning, stacklevel=3)
+    if len(names) != 1:
+        if names:
+            meta["sensor_candidates"] = list(names)
+        return None
+    meta["sensor_source"] = "size"
+    return names[0]
+
+
+def _mode_bits(name: str, width: int, height: int) -> int:
+    """The bit depth of a registry sensor's deepest mode of this size (its deepest mode if none is), that of the
+    data in a 16-bit buffer (the Pi 5's ``S<order>16``, PiSP) whose configuration does not give the sensor's."""
+    depths = [mode.bit_depth for mode in sensor_modes(name) if (mode.width, mode.height) == (width, height)]
+    return max(depths, default=get_sensor(name).bit_depth)
 
 
 def to_picamera2(raw: RawImage, *, packed: bool = True, align: int = UNICAM_ALIGN) -> tuple[np.ndarray, dict, dict]:
