@@ -340,3 +340,35 @@ def test_row_blocks_run_on_while_the_interpreter_exits():
     for _ in range(3):
         done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
         assert done.returncode == 0 and "failed" not in done.stderr, done.stderr
+
+
+def test_a_request_knows_its_camera_by_what_it_needs_of_it():
+    """``request`` imports nothing of ``camera`` (not even for the type checker): a request takes its owner's
+    controls, and the camera tells its own requests by their owner (the next test)."""
+    import ast
+
+    from picamcal.virtualcam import request
+
+    tree = ast.parse(open(request.__file__, encoding="utf-8").read())
+    imported = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    assert "camera" not in imported and "picamcal.virtualcam.camera" not in imported
+
+
+@pytest.mark.slow
+def test_a_camera_refuses_another_cameras_request():
+    """camera.cpp queueRequest: a request made by another camera is refused (-EXDEV)."""
+    cameras = []
+    for _ in range(2):
+        camera = manager().cameras[0]
+        camera.acquire()
+        config = camera.generate_configuration([StreamRole.Raw])
+        config.validate()
+        camera.configure(config)
+        cameras.append(camera)
+    camera, other = cameras
+    camera.start()
+    try:
+        with pytest.raises(RuntimeError, match="Failed to queue request: Invalid cross-device link"):
+            camera.queue_request(other.create_request())
+    finally:
+        camera.stop()
