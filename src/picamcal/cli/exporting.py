@@ -32,10 +32,16 @@ from ._common import (
     reader,
 )
 
+#: What export-tuning and export-lst take as their calibration.
+SOURCE_HELP = (
+    "Calibration (.npz), or a lens shading table: a legacy .npy (export-lst), an OpenFlexure microscope_settings.npz, "
+    "a C header (ls_table.h), a libcamera tuning file (.json)."
+)
+
 
 @app.command("export-tuning")
 def export_tuning_cmd(
-    calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
+    calibration: Annotated[Path, typer.Argument(help=SOURCE_HELP)],
     out: Annotated[
         Path,
         typer.Option(
@@ -65,17 +71,20 @@ def export_tuning_cmd(
     sensor: Annotated[
         str | None,
         typer.Option(
-            help="The sensor, where the calibration does not say it (picks the stock file); with --base, the sensor "
-            "the base is for (default: from its name)."
+            help="The sensor, where the calibration or table does not say it (picks the stock file); with --base, the "
+            "sensor the base is for (default: from its name)."
         ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace existing output files.")] = False,
 ) -> None:
     """Write libcamera tuning files with a static lens shading table (rpi.alsc) from the calibration.
 
+    The calibration may also be a lens shading table you have (a legacy .npy, an OpenFlexure microscope_settings.npz,
+    a C header, a libcamera tuning file: its flat field is exported, so a Pi 4 tuning converts to a Pi 5 one).
     Without --base, starts from the sensor's stock file (or its --variant's): libcamera's own on a Raspberry Pi,
-    else the copy picamcal ships; --target both (the default) writes one for a Pi 4 (vc4) and one for a Pi 5 (pisp).
-    Each file records, and this prints, the colour gains that make the calibration's white neutral through it.
+    else the copy picamcal ships (libcamera's uncalibrated.json for a sensor with none); --target both (the
+    default) writes one for a Pi 4 (vc4) and one for a Pi 5 (pisp). Each file records, and this prints, the colour
+    gains that make the calibration's white neutral through it.
     """
     from ..export.tuning import (
         TARGET_NAMES,
@@ -84,17 +93,17 @@ def export_tuning_cmd(
         export_tuning,
         is_tuning_file,
         load_calibration_to_export,
-        load_tuning,
+        load_export_base,
         save_tuning,
     )
 
-    cal = load_calibration_to_export(calibration)
+    cal = load_calibration_to_export(calibration, sensor)
     names = list(TARGET_NAMES) if choice(target, (*TARGET_NAMES, "both"), "--target") == "both" else [target.lower()]
     chosen = export_bases(
         cal, base=base, targets=[TARGET_NAMES[name] for name in names], variant=variant, sensor=sensor
     )
     bases = chosen.paths
-    tunings = [load_tuning(path) for path in bases]
+    tunings = [load_export_base(path, chosen) for path in bases]
     if len(bases) > 1 and out.suffix.lower() == ".json":
         raise typer.BadParameter("two targets need a folder (or --target vc4 or pisp for one file)", param_hint="--out")
     if out.suffix.lower() == ".json":
@@ -126,6 +135,13 @@ def export_tuning_cmd(
     for path, tuning, base_path in zip(outputs, exported, bases, strict=True):
         save_tuning(path, tuning, overwrite=overwrite)
         record = tuning["picamcal"]
+        if "colour_gains" not in record:  # a table's flat field: no colour balance to speak of
+            line = (
+                f"wrote {path}: static lens shading for {tuning['target']} from {calibration.name} (base {base_path}); "
+                f"colour gains: {record['colour_gains_use']}"
+            )
+            console().print(line, markup=False, highlight=False, soft_wrap=True)
+            continue
         red, blue = record["colour_gains"]
         lines = [
             f"wrote {path}: static lens shading for {tuning['target']} from {calibration.name} (base {base_path}); "
@@ -145,17 +161,24 @@ def export_tuning_cmd(
 
 @app.command("export-lst")
 def export_lst_cmd(
-    calibration: Annotated[Path, typer.Argument(help="Calibration file (.npz).")],
+    calibration: Annotated[Path, typer.Argument(help=SOURCE_HELP)],
     out: Annotated[Path, typer.Option("--out", "-o", help="Table to write (.npy).")],
+    sensor: Annotated[
+        str | None, typer.Option(help="The sensor, where the calibration or table does not say it.")
+    ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
-    """Write the legacy firmware's lens shading table (uint8 .npy for the picamera fork)."""
+    """Write the legacy firmware's lens shading table (uint8 .npy for the picamera fork).
+
+    The calibration may also be a lens shading table you have (a libcamera tuning file, an OpenFlexure
+    microscope_settings.npz, a C header): its flat field is written as the legacy table.
+    """
     from ..export.legacy import is_legacy_table, legacy_table, save_legacy_table
     from ..export.tuning import load_calibration_to_export
 
     check_output(out, overwrite, is_legacy_table, "a legacy lens shading table", [calibration])
 
-    table = legacy_table(load_calibration_to_export(calibration))
+    table = legacy_table(load_calibration_to_export(calibration, sensor))
     save_legacy_table(out, table, overwrite=overwrite)
     console().print(f"wrote {out}: {table.shape} uint8, gains {table.min() / 32:.2f} to {table.max() / 32:.2f}")
 

@@ -286,6 +286,30 @@ def lens_shading_gains(
     return np.stack([gy @ c @ gx.T for c in corners], axis=-1).astype(np.float32)
 
 
+def lens_shading_gains_at(
+    tuning: dict[str, Any], mode: SensorMode, rows: np.ndarray, cols: np.ndarray, *, ct: float | None = None
+) -> np.ndarray:
+    """The R, G, B gains (3, len(rows), len(cols)) the ISP applies at some positions of a mode's image.
+
+    :func:`lens_shading_gains` at chosen rows and columns only (pixel centres at integers, any real positions,
+    clamped to the image): the tables libcamera computes for the mode, quantised as the hardware holds them and
+    interpolated bilinearly from its grid, without making the whole (height, width, 3) image.
+
+    Examples
+    --------
+    >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
+    >>> tuning = load_tuning(stock_tuning_path("imx219", "pisp"))
+    >>> at = lens_shading_gains_at(tuning, SensorMode.full(320, 240), np.array([0.0, 120.0]), np.array([0.0, 160.0]))
+    >>> bool(np.allclose(at[:, 1, 1], lens_shading_gains(tuning, 320, 240)[120, 160]))
+    True
+    """
+    target, corners = _hardware_tables(tuning, mode, ct)
+    (gw, gh), (spacing_x, spacing_y) = hardware_grid(target, mode.width, mode.height)
+    gy = _grid_to_pixels(gh, spacing_y, np.clip(np.asarray(rows, dtype=float), 0, mode.height - 1))
+    gx = _grid_to_pixels(gw, spacing_x, np.clip(np.asarray(cols, dtype=float), 0, mode.width - 1))
+    return np.stack([gy @ c @ gx.T for c in corners])
+
+
 def check_scaler_crop(mode: SensorMode, scaler_crop: Box, what: str = "ScalerCrop") -> Box:
     """``scaler_crop`` as four whole numbers, checked to lie inside the sensor mode's crop (a stream shows only what
     its mode reads: libcamera encloses the ISP's crop in the mode's image, ``applyScalerCrop`` in

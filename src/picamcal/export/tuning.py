@@ -31,6 +31,7 @@ from .isp import (
     check_tuning,
 )
 from .tuning_fit import (  # noqa: F401 - how the table is chosen, importable from here as before
+    IMPORTED_KEY,
     SMOOTHNESS,
     GainFit,
     alsc_tables,
@@ -257,8 +258,51 @@ class ExportBases(NamedTuple):
     sensor: str | None
     #: The outputs' name before ``_<vc4|pisp>.json``: the sensor and variant (``imx708_wide``), else the base's.
     stem: str
-    #: Which targets have no stock file (where others have), to tell the user; None if none is missing.
+    #: Which targets have no stock file (where others have), or that the generic base was taken; None if neither.
     note: str | None
+    #: The bases are libcamera's generic ``uncalibrated.json``: the sensor has no stock file (:func:`load_export_base`
+    #: sets its black level).
+    generic: bool = False
+
+
+#: libcamera's tuning file for a sensor it has none for, which picamcal ships for each target.
+GENERIC_TUNING = "uncalibrated"
+
+
+def generic_tuning_path(target: str) -> Path:
+    """libcamera's generic tuning file (``uncalibrated.json``) for a target, as picamcal ships it.
+
+    Examples
+    --------
+    >>> generic_tuning_path("pisp").name, generic_tuning_path("vc4").parent.name
+    ('uncalibrated.json', 'vc4')
+    """
+    target = TARGET_NAMES.get(target, target)
+    if target not in _TARGET_DIRS:
+        raise TuningError(f"unknown tuning target {target!r} (expected vc4, pisp, bcm2835)")
+    return BUNDLED_TUNING_DIR / _TARGET_DIRS[target] / f"{GENERIC_TUNING}.json"
+
+
+def load_export_base(path: str | os.PathLike[str], chosen: ExportBases) -> dict[str, Any]:
+    """A base :func:`export_bases` chose, loaded (:func:`load_tuning`); the generic one with the sensor's black level
+    from the registry (on libcamera's 16-bit scale), so that a sensor without a stock file gets a base that works.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> cal = picamcal.calibrate(simulate_references(make_camera("imx585", size=(384, 216)), seed=1)["white"])
+    >>> chosen = export_bases(cal, targets=["pisp"])
+    >>> chosen.generic, load_export_base(chosen.paths[0], chosen)["algorithms"][0]
+    (True, {'rpi.black_level': {'black_level': 3200}})
+    """
+    from ..sensors import SENSORS
+
+    tuning = load_tuning(path)
+    entry = SENSORS.get(chosen.sensor or "")
+    if chosen.generic and entry is not None:
+        level = entry.black_level << (16 - entry.bit_depth)
+        _set_algorithm(tuning["algorithms"], "rpi.black_level", {"black_level": level}, after="")
+    return tuning
 
 
 def export_bases(
@@ -315,18 +359,28 @@ def export_bases(
             "the calibration does not say its sensor: name it with --sensor (or give a tuning file with --base)",
             calibration.path,
         )
+    if not variant and not stock_tuning_files(chosen):
+        paths = [generic_tuning_path(target) for target in targets]
+        note = (
+            f"Raspberry Pi ships no tuning file for the {chosen}: started from libcamera's {GENERIC_TUNING}.json "
+            f"(bundled with picamcal, its black level set to the {chosen}'s); give the sensor's own with --base"
+        )
+        return ExportBases(paths, chosen, chosen, note, generic=True)
     paths, note = stock_tuning_bases(chosen, targets, variant)
     variant = (variant or "").lower().replace("-", "_")
     return ExportBases(paths, chosen, f"{chosen}_{variant}" if variant else chosen, note)
 
 
-def load_calibration_to_export(path: str | os.PathLike[str]) -> Calibration:
-    """:func:`picamcal.calibration.load_calibration`, telling whoever gives an image to make a calibration first.
+def load_calibration_to_export(path: str | os.PathLike[str], sensor: str | None = None) -> Calibration:
+    """The calibration to export: a picamcal calibration, or the flat field of a lens shading table a user has (a
+    legacy ``.npy``, an OpenFlexure ``microscope_settings.npz``, a C header, a libcamera tuning file), for ``sensor``
+    where the file does not say (:func:`picamcal.export.tables.load_flat_field`); whoever gives an image is told to
+    make a calibration first.
 
     Raises
     ------
     CalibrationFileError
-        As ``load_calibration``; for an image: "this is a raw image, not a calibration: make one ... with picamcal
+        As ``load_flat_field``; for an image: "this is a raw image, not a calibration: make one ... with picamcal
         calibrate".
 
     Examples
@@ -338,12 +392,15 @@ def load_calibration_to_export(path: str | os.PathLike[str]) -> Calibration:
     ...
     picamcal.errors.CalibrationFileError: white.dng: this is a raw image, not a calibration: make one from the \
 reference images with picamcal calibrate, then export that .npz
+    >>> np.save("lst.npy", np.full((4, 39, 52), 40, np.uint8))  # picamcal export-lst's table, for the IMX219
+    >>> load_calibration_to_export("lst.npy").kind
+    'flat'
     """
-    from ..calibration import load_calibration
     from ..calibration.archive import ImageNotCalibrationError
+    from .tables import load_flat_field
 
     try:
-        return load_calibration(path)
+        return load_flat_field(path, sensor)
     except ImageNotCalibrationError as exc:
         raise CalibrationFileError(
             f"this is {exc.kind}, not a calibration: make one from the reference images with picamcal calibrate, "
@@ -525,11 +582,18 @@ def export_tuning(
     coverage = mode_coverage(calibration)
     modes = sensor_mode_geometries(calibration)
     assert calibration.geometry is not None
-    tuning[RECORD_KEY] = {
+    # A table keeps each channel's shape only, not the camera's colour balance: no gains can be said to make its
+    # white neutral, and the camera's own white balance (or its frozen gains) is what applies.
+    imported = IMPORTED_KEY in calibration.provenance
+    gains = {
         "colour_gains": list(neutral_colour_gains(calibration, tuning)),
         "colour_gains_by_mode": {name: list(neutral_colour_gains(calibration, tuning, modes[name])) for name in modes},
-        "colour_gains_use": COLOUR_GAINS_USE,
+    }
+    tuning[RECORD_KEY] = {
+        **({} if imported else gains),
+        "colour_gains_use": IMPORTED_GAINS_USE if imported else COLOUR_GAINS_USE,
         "calibration": calibration.path.name if calibration.path else None,
+        "sensor": calibration.sensor,
         "geometry": calibration.geometry.to_record(),
         "modes_covered": coverage["covered"],
         "modes_extrapolated": coverage["extrapolated"],
@@ -551,6 +615,13 @@ def export_tuning(
 COLOUR_GAINS_USE = (
     "red and blue gains that make the calibration's white neutral through this file: rpicam-apps --awbgains R,B, "
     "Picamera2 ColourGains (R, B); libcamera ignores this entry"
+)
+
+
+#: What stands in the record's place of the colour gains for a table's flat field.
+IMPORTED_GAINS_USE = (
+    "from a lens shading table, which keeps no colour balance: set the colour gains from a white through this file "
+    "(auto white balance, then freeze it), as with the table before"
 )
 
 

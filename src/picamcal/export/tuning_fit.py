@@ -70,6 +70,10 @@ def _fitted_modes(calibration: Calibration) -> list[Calibration]:
     that mode's bins (:func:`picamcal.calibration.resample.resample_calibration`), each area once."""
     geometry = calibration.geometry
     assert geometry is not None
+    if IMPORTED_KEY in calibration.provenance:
+        # A table's flat field is what it gives the full sensor; fitting other modes too would trade it for theirs,
+        # and a table converted (vc4 to pisp and back) would drift from itself by 1 % in places.
+        return [calibration]
     fitted, areas = [calibration], {geometry.area()}
     modes = sensor_mode_geometries(calibration)
     for name in mode_coverage(calibration)["covered"]:
@@ -81,6 +85,8 @@ def _fitted_modes(calibration: Calibration) -> list[Calibration]:
     return fitted
 
 
+#: The provenance key of a calibration made from a lens shading table (:mod:`picamcal.export.tables`).
+IMPORTED_KEY = "imported_table"
 #: The fewest bins along each side of a mode for the fit to take it beside the calibration's own mode.
 MIN_FITTED_BINS = 8
 
@@ -135,7 +141,9 @@ def fit_gain_tables(calibration: Calibration, target: str) -> np.ndarray:
     calibration's mode and every sensor mode inside its crop (:func:`mode_coverage`), each mode's mean square
     error counting alike, with a small second-difference penalty (:data:`SMOOTHNESS`); libcamera resamples a table
     coarsely to a cropped mode (most on a Pi 4's 16 x 12 grid), so a table fitted to one mode alone can miss
-    another by several per cent. A calibration of the whole sensor (binned or not) measures every cell; one from a
+    another by several per cent (a calibration made from a lens shading table, :mod:`picamcal.export.tables`, is
+    fitted in the full sensor mode alone: the field a table describes is the one it gives there). A calibration of the
+    whole sensor (binned or not) measures every cell; one from a
     cropped mode measures the cells over its crop, and the table is extended beyond it by its edge values: every
     mode inside the crop comes out flat, the others are extrapolated.
 
