@@ -166,7 +166,7 @@ def read_headless(
     config: dict[str, Any] = {"format": spec.name, "size": (width, height), "stride": row_stride}
     if name is not None:
         config = {"raw": config, "sensor": {"bit_depth": get_sensor(name).bit_depth}}
-    decoded = from_picamera2(data, config, {}, source=path)
+    decoded = from_picamera2(data, config, {}, source=path, by_size=False)  # read_raw says what its size is
     if given_black is None:
         black, black_source = sensor_black_level(name, decoded.bit_depth)
     else:

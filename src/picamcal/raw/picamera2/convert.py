@@ -36,6 +36,7 @@ def from_picamera2(
     *,
     sensor: str | None = None,
     source: str | os.PathLike[str] = "<picamera2>",
+    by_size: bool = True,
 ) -> RawImage:
     """Make a RawImage from a picamera2 raw buffer, its stream configuration and its request metadata.
 
@@ -57,12 +58,15 @@ def from_picamera2(
         ``Lux`` and ``SensorTimestamp`` are kept as ``exposure_time_s``, ``analogue_gain``, ... in
         ``RawImage.metadata``.
     sensor : str, optional
-        Sensor name; by default found in ``config["model"]``, else the registry's one sensor of the frame's size
-        (with a ``PicamcalWarning``, as :func:`picamcal.read_raw` takes a file's; a size several sensors share puts
-        them in ``metadata["sensor_candidates"]``). The sensor's bit depth (``config["sensor"]["bit_depth"]``, else
-        that of the registry sensor's mode of this size) is that of the data in a 16-bit buffer.
+        Sensor name; by default found in ``config["model"]``, else, with ``by_size``, the registry's one sensor of
+        the frame's size (with a ``PicamcalWarning``, as :func:`picamcal.read_raw` takes a file's). The sensor's bit
+        depth (``config["sensor"]["bit_depth"]``, else that of the registry sensor's mode of this size) is that of
+        the data in a 16-bit buffer.
     source : str or path-like
         What to call the data in messages and ``metadata["path"]``.
+    by_size : bool
+        Whether a buffer that names no sensor is taken as the one registry sensor of its size (the headless reader,
+        which says what its dump is itself, decodes without).
 
     Returns
     -------
@@ -106,7 +110,7 @@ def from_picamera2(
     meta: dict[str, Any] = {"format": "picamera2", "path": source, "raw_format": layout.name, "stride": layout.stride}
     if model is not None:
         meta["model"] = model
-    if name is None and model is None:  # nothing names it: the registry's one sensor of this size, if one
+    if name is None and model is None and by_size:  # nothing names it: the registry's one sensor of this size
         name = _sensor_by_size(layout, meta)
     if name is not None and layout.sensor_bits is None and layout.bits == 16:
         layout = dataclasses.replace(layout, sensor_bits=_mode_bits(name, layout.width, layout.height))
@@ -126,16 +130,13 @@ def from_picamera2(
 
 
 def _sensor_by_size(layout: Layout, meta: dict[str, Any]) -> str | None:
-    """The registry sensor a buffer of this size and format comes from when only one does (said in a warning), as
-    :func:`picamcal.read_raw` takes a file's; several are put in ``meta["sensor_candidates"]``. The bits of an
-    unpacked 16-bit or PiSP buffer say nothing of the sensor's."""
+    """The registry sensor a buffer of this size and format comes from when only one does, said in the warning
+    :func:`picamcal.read_raw` gives of a file (which lists the candidates of a size several sensors share). The bits
+    of an unpacked 16-bit or PiSP buffer say nothing of the sensor's."""
     names = sensors_of_size(layout.width, layout.height, layout.sensor_bits or layout.bits)
-    if names:
-        warnings.warn(size_note(names, layout.width, layout.height), PicamcalWarning, stacklevel=3)
     if len(names) != 1:
-        if names:
-            meta["sensor_candidates"] = list(names)
         return None
+    warnings.warn(size_note(names, layout.width, layout.height), PicamcalWarning, stacklevel=3)
     meta["sensor_source"] = "size"
     return names[0]
 
