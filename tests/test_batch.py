@@ -430,7 +430,7 @@ def test_zarr_stack_holds_the_frames_with_ome_metadata_and_resumes(data, tmp_pat
 
     finished = run_batch(data["cal"], [data["frames"]], BatchOptions(zarr_path=stack, workers=0))
     assert finished.done == [] and len(finished.skipped) == 10
-    with pytest.raises(OutputError, match="holds a stack of other inputs or settings"):
+    with pytest.raises(OutputError, match="holds a stack of other inputs or settings: other mode "):
         run_batch(data["cal"], [data["frames"]], BatchOptions(zarr_path=stack, workers=0, mode="flat"))
 
 

@@ -319,7 +319,7 @@ def test_a_run_killed_while_it_holds_claims_is_finished_by_the_next(data, tmp_pa
     out = tmp_path / "out"
     run = correct_in_a_process(tmp_path / "cal.npz", frames, out, "--workers", "0")
     try:
-        while not any(name.endswith(claims.CLAIM_SUFFIX) for name in leftovers(out) if out.exists()):
+        while not (out.exists() and any(name.endswith(claims.CLAIM_SUFFIX) for name in leftovers(out))):
             assert run.poll() is None, run.stderr.read()  # the claims appear while it works
             time.sleep(0.01)
     finally:

@@ -8,7 +8,8 @@ local process pool or on a dask cluster, so the outputs are the same bytes eithe
 
 The modules: :mod:`~picamcal.batch.options` (the options, checked once), :mod:`~picamcal.batch.inputs`
 (files, folders and patterns), :mod:`~picamcal.batch.disk` (the output place and its room),
-:mod:`~picamcal.batch.stopping` (SIGINT and SIGTERM),
+:mod:`~picamcal.batch.stopping` (SIGINT and SIGTERM), :mod:`~picamcal.batch.record` (the settings each output
+records), :mod:`~picamcal.batch.claims` (batches writing into one folder at once),
 :mod:`~picamcal.batch.worker` (the task and what a worker keeps), :mod:`~picamcal.batch.pipeline` (a
 worker's reading, correcting and writing overlapped), :mod:`~picamcal.batch.executors` (this process, a pool,
 dask) and :mod:`~picamcal.batch.run` (:func:`run_batch` itself).
@@ -29,8 +30,14 @@ What it guarantees:
   removed by the next run (:func:`picamcal._atomic.remove_stale_temporaries`).
 - **Nothing left running.** The pool's workers end when this process ends, even by ``kill -9``; then the
   forkserver and multiprocessing's resource tracker, which wait for them, end too.
-- **Resumable.** Existing outputs are skipped unless ``overwrite``; the zarr stack records its finished
-  frames in its attributes. Running the same command again finishes an interrupted batch.
+- **Resumable.** Existing outputs made with the same settings are skipped unless ``overwrite``; the zarr stack
+  records its finished frames in its attributes. Running the same command again finishes an interrupted batch.
+- **Honest about what is in place.** Every output records the settings that made it
+  (:mod:`~picamcal.batch.record`); one made with other settings is kept and reported (``BatchResult.kept``,
+  naming what differs) unless ``overwrite``, which replaces only what picamcal wrote.
+- **Shared with other runs.** Batches writing into one folder at once claim each output before reading its input
+  (:mod:`~picamcal.batch.claims`): each output is written by one of them, each waits for the others' and reports
+  them (``BatchResult.by_another_run``); a killed run's claims are taken over.
 - **Stopped cleanly.** On SIGINT (Ctrl-C) or SIGTERM no new file is started, the files in flight are finished
   or dropped within about a second, their temporaries are removed, and :class:`BatchInterrupted` says how many
   were written (:mod:`~picamcal.batch.stopping`).

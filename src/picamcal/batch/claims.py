@@ -134,7 +134,7 @@ def is_claimed(target: str | os.PathLike[str]) -> bool:
 def remove_stale_claims(folder: str | os.PathLike[str]) -> list[Path]:
     """Remove the claims in ``folder`` whose holder is gone for certain (a run on this machine that was killed);
     return them. Another machine's claims are left to :func:`take`, which judges them by their age."""
-    removed = []
+    removed: list[Path] = []
     try:
         names = [entry.name for entry in os.scandir(folder)]
     except OSError:

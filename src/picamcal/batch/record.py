@@ -158,7 +158,9 @@ def differences(recorded: Mapping[str, Any] | None, current: Mapping[str, Any]) 
     """
     if not isinstance(recorded, Mapping):
         return ["settings not recorded (an earlier picamcal wrote it)"]
-    used = recorded.get("used") if isinstance(recorded.get("used"), Mapping) else {}
+    used = recorded.get("used")
+    if not isinstance(used, Mapping):
+        used = {}
     found = []
     for key, name in SETTING_NAMES.items():
         new = current.get(key)

@@ -272,6 +272,7 @@ def _run(
     client = None if options.scheduler is None else connect(options.scheduler, settings, options.scheduler_timeout)
     created: list[Path] = []
     place_error = None
+    left_to_others: set[int] = set()  # the jobs whose output another run claimed: its to write
     try:
         if stack is not None:
             created = [] if stack.resuming else missing_folders(options.place)
@@ -290,7 +291,7 @@ def _run(
         interrupt.working()
         started_ns = time.time_ns() - 20_000_000  # file times come from a coarser clock, a few ms behind
         try:
-            place_error = _drive(runner, jobs, sources, result, stack, progress, interrupt, settings)
+            place_error = _drive(runner, jobs, sources, result, stack, progress, interrupt, settings, left_to_others)
         finally:
             runner.close()
     finally:
@@ -309,7 +310,7 @@ def _run(
                 shutil.rmtree(options.place, ignore_errors=True)
             remove_empty_folders(created)
     if interrupt.is_set() and stack is None:  # a killed worker's task reports none of the files it wrote
-        _count_written(jobs, sources, result, started_ns)
+        _count_written([job for job in jobs if job.index not in left_to_others], sources, result, started_ns)
     order = {path: i for i, path in enumerate(sources)}
     result.done.sort(key=order.__getitem__)
     result.failed.sort(key=lambda item: order[item[0]])
@@ -326,7 +327,12 @@ def _run(
 def _count_written(jobs: Sequence[Job], sources: list[Path], result: BatchResult, since_ns: int) -> None:
     """Add to ``result.done`` the files an interrupted batch wrote whose task was dropped before it reported them:
     their outputs are in place (renamed there whole, or not at all), written since the work began."""
-    reported = {*result.done, *(path for path, _ in result.failed)}
+    reported = {
+        *result.done,
+        *(path for path, _ in result.failed),
+        *result.by_another_run,
+        *(p for p, _ in result.kept),
+    }
     for job in jobs:
         source = sources[job.index]
         if source in reported or job.target is None:
@@ -498,6 +504,7 @@ def _drive(
     progress: Callable[[int, int], None] | None,
     interrupt: Interrupt,
     settings: Settings,
+    left_to_others: set[int],
 ) -> str | None:
     """Run the jobs and record each outcome. Returns why the output place became unusable, if it did (then no
     more work was started). Interrupted, the files whose task was lost (its worker killed) are neither done nor
@@ -505,7 +512,8 @@ def _drive(
 
     An output another run writing into the same folder has claimed (:mod:`picamcal.batch.claims`) is left to it;
     once that run is done with it, the output is either in place (written by the other run) or still to write
-    (the other run failed or was stopped), and then this run does it."""
+    (the other run failed or was stopped), and then this run does it. ``left_to_others`` gets the index of every job
+    whose output another run claimed."""
     place_error = None
     finished = 0
     if progress is not None:
@@ -525,6 +533,7 @@ def _drive(
                 job = by_index[outcome.index]
                 if outcome.elsewhere == "claimed":
                     claimed.append(job)
+                    left_to_others.add(job.index)
                     continue
                 place_error = place_error or _record(outcome, job, sources[job.index], result, stack)
                 finished += 1

@@ -127,9 +127,15 @@ class ZarrStack:
             if record is None and any(self.path.iterdir()):
                 raise OutputError("exists and is not a picamcal zarr stack; choose another --zarr", self.path)
             if record is not None and not overwrite:
-                if record.get("sources") != self.sources or record.get("settings") != self.signature:
+                differing = (
+                    "other inputs"
+                    if record.get("sources") != self.sources
+                    else _differing(record.get("settings"), self.signature)
+                )
+                if differing:
                     raise OutputError(
-                        "holds a stack of other inputs or settings (use --overwrite to replace it)", self.path
+                        f"holds a stack of other inputs or settings: {differing} (use --overwrite to replace it)",
+                        self.path,
                     )
                 self.done = {int(i) for i in record.get("done", [])}
                 self.resuming = True
@@ -210,6 +216,15 @@ class ZarrStack:
         except OSError as exc:
             raise OutputError(f"cannot record the finished frames: {exc.strerror or exc}", self.path) from exc
         self.recorded_at = time.monotonic()
+
+
+def _differing(recorded: Any, settings: dict[str, Any]) -> str:
+    """Which of a stack's recorded settings differ from ``settings``, by name ("other mode, read_options"); an
+    empty string if none does."""
+    if not isinstance(recorded, dict):
+        return "settings not recorded"
+    names = sorted(key for key in {*recorded, *settings} if recorded.get(key) != settings.get(key))
+    return f"other {', '.join(names)}" if names else ""
 
 
 def write_frame(
