@@ -8,6 +8,7 @@ started together on the same folder; nothing here depends on how fast the machin
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -30,7 +31,7 @@ from picamcal.batch import BatchOptions, claims, run_batch
 from picamcal.cli import main
 from picamcal.output import OUTPUT_SUFFIXES, write_corrected
 from picamcal.output.provenance import read_record
-from picamcal.raw import write_dng
+from picamcal.raw import read_raw, write_dng
 from picamcal.simulate import make_camera, simulate_target
 
 SIZE = (320, 240)
@@ -104,6 +105,21 @@ def test_a_rerun_with_another_black_level_keeps_the_outputs_says_so_and_overwrit
 
     code, err = cli(capfd, "correct", data["cal"], data["frames"], "--out", out, "--workers", "0", "--black-level", 60)
     assert code == 0 and f"skipped {FRAMES} (done already)" in err[-1] and "kept" not in " ".join(err), err
+
+
+def test_the_newcomers_walk_a_frame_taken_at_black_0_then_corrected_with_64_says_so(data, tmp_path, capfd):
+    """The stumble of issue 31: a file that says black level 0 corrected as it says, then again with
+    ``--black-level 64``, was "skipped 1 (done already)"."""
+    raw = read_raw(data["frames"] / "f0.dng")
+    write_dng(tmp_path / "frame.dng", dataclasses.replace(raw, black_level=(0, 0, 0, 0)))
+    out = tmp_path / "out"
+    assert cli(capfd, "correct", data["cal"], tmp_path / "frame.dng", "--out", out, "--pattern", "BGGR")[0] == 0
+    code, err = cli(
+        capfd, "correct", data["cal"], tmp_path / "frame.dng", "--out", out, "--pattern", "BGGR", "--black-level", 64
+    )
+    assert code == 1 and err[-2] == (
+        "picamcal: kept 1 output made with other settings (black level 0, now 64): use --overwrite to remake them"
+    ), err
 
 
 def test_a_black_level_given_as_the_files_have_it_is_the_same_setting(data, tmp_path, capfd):
