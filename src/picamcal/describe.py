@@ -178,6 +178,22 @@ def _load_calibration(path: str, mtime_ns: int, size: int) -> Any:
         return None
 
 
+def _shading_table(path: Path) -> dict[str, Any] | None:
+    """:func:`picamcal.export.tables.inspect_table` of the file, read once as long as it is unchanged."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    return _inspect_table(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _inspect_table(path: str, mtime_ns: int, size: int) -> dict[str, Any] | None:
+    from .export.tables import inspect_table
+
+    return inspect_table(path)
+
+
 def what_else(path: Path) -> str | None:
     """What a file that is not an image is, when picamcal knows: a calibration, a sidecar, a tuning file, ...
 
@@ -199,12 +215,19 @@ def what_else(path: Path) -> str | None:
             head = f.read(1) if os.fstat(f.fileno()).st_size <= _MAX_JSON_BYTES else b""
     except OSError:
         return None
+    table = _shading_table(path)
+    if table is not None and table["readable"]:  # a lens shading table a user has: what export-tuning takes
+        return table["format"]
     if path.suffix.lower() == ".npz" and not is_raw_npz(path):
         cal = _calibration(path)
         if cal is None:
             import zipfile
 
-            return "NumPy .npz archive (not a raw image or a calibration)" if zipfile.is_zipfile(path) else None
+            return (
+                "NumPy .npz archive (not a raw image, a calibration or an OpenFlexure lens shading table)"
+                if zipfile.is_zipfile(path)
+                else None
+            )
         about = [f"{cal.sensor or 'unknown sensor'} {cal.width}x{cal.height}"]
         if cal.kind == "flat":
             about.append("a flat field from a white")
@@ -263,6 +286,9 @@ def survey(path: str | Path, read: Callable[[Path], RawImage] = read_raw) -> dic
     False
     """
     path = Path(path)
+    table = _shading_table(path) if path.is_file() else None
+    if table is not None:  # a lens shading table, or one that does not read (why)
+        return {"path": str(path), "raw": False, **table}
     other = what_else(path) if path.is_file() else None
     if other is not None:
         record = {"path": str(path), "format": other, "raw": False, "readable": True}

@@ -37,6 +37,7 @@ __all__ = [
     "ShadingTable",
     "TableFileError",
     "describe_table",
+    "inspect_table",
     "is_shading_table",
     "load_flat_field",
     "read_shading_table",
@@ -208,7 +209,7 @@ def describe_table(table: ShadingTable) -> dict[str, Any]:
     >>> np.save("lst.npy", np.full((4, 39, 52), 40, np.uint8))
     >>> record = describe_table(read_shading_table("lst.npy"))
     >>> record["grid"], record["sensor"], record["gains"], record["unity"]
-    ('52 x 39 cells of 64 px, planes R, Gr, Gb, B', 'imx219', [1.25, 1.25], '32 (u3.5)')
+    ('52 x 39 cells of 64 px, planes R, Gr, Gb, B', 'imx219', [1.25, 1.25], '32 in u3.5')
     """
     record: dict[str, Any] = {"format": table.format, "kind": table.kind}
     if table.legacy is not None:
@@ -219,7 +220,7 @@ def describe_table(table: ShadingTable) -> dict[str, Any]:
             sensor=table.sensor or (candidates[0] if len(candidates) == 1 else None),
             sensor_candidates=candidates,
             gains=[round(int(table.legacy.min()) / UNITY, 4), round(int(table.legacy.max()) / UNITY, 4)],
-            unity=f"{UNITY} (u3.5)",
+            unity=f"{UNITY} in u3.5",
             sensor_mode="the full sensor (legacy tables cover it whatever the mode)",
         )
         if "ref_transform" in table.details:
@@ -246,3 +247,60 @@ def describe_table(table: ShadingTable) -> dict[str, Any]:
         if gains is not None:
             record["gains"] = [round(float(gains.min()), 4), round(float(gains.max()), 4)]
     return record
+
+
+def inspect_table(path: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """What ``picamcal inspect`` lists for a lens shading table: None for a file that is no table (a tuning file
+    without ``rpi.alsc`` is none); else the record of :func:`describe_table` with ``"format"`` a line saying it all
+    and ``"readable"`` True, or, for one that looks like a table but does not read, ``"readable"`` False and the
+    ``"error"``.
+
+    Examples
+    --------
+    >>> np.savez("microscope_settings.npz", lens_shading_table=np.full((4, 39, 52), 40, np.uint8))
+    >>> inspect_table("microscope_settings.npz")["format"]
+    'OpenFlexure lens shading table (microscope_settings.npz): 52 x 39 cells of 64 px, planes R, Gr, Gb, B; imx219; \
+gains 1.25 to 1.25 (unity: 32 in u3.5)'
+    >>> np.save("broken.npy", np.zeros((4, 39, 52), np.uint8))
+    >>> inspect_table("broken.npy")["error"]
+    'the table holds 8112 zeros (gain 0; 32 is 1.0): not a lens shading table'
+    """
+    path = Path(path)
+    if not (looks_like_table(path) or _has_alsc(path)):
+        return None
+    try:
+        record = describe_table(read_shading_table(path))
+    except TableFileError as exc:
+        return {"format": "-", "readable": False, "error": exc.problem}
+    gains = record.get("gains")
+    about = [record["grid"], record.get("sensor") or _unsaid(record)]
+    if gains:
+        about.append(f"gains {gains[0]:.2f} to {gains[1]:.2f} (unity: {record['unity']})")
+    cts = record.get("colour_temperatures")
+    if cts and len(cts) > 1:
+        about.append(f"tables at {', '.join(map(str, cts))} K, taken at {record['ct']:g} K")
+    if record.get("adaptive"):
+        about.append("adaptive (n_iter > 0): its tables are the start")
+    return {**record, "format": f"{record['format']}: {'; '.join(about)}", "readable": True}
+
+
+def _unsaid(record: dict[str, Any]) -> str:
+    """What stands for the sensor of a table that does not say it."""
+    if record["kind"] == "tuning":
+        return "sensor not said (give --sensor)"
+    candidates = record["sensor_candidates"]
+    if not candidates:
+        return "a size no sensor picamcal knows has"
+    return f"sensor not said ({' or '.join(candidates)}: give --sensor)"
+
+
+def _has_alsc(path: Path) -> bool:
+    """A JSON or YAML file that names libcamera's ``rpi.alsc``: a tuning file with a lens shading table, or a broken
+    one (read as such, it says why)."""
+    if not _looks_like_tuning(path):
+        return False
+    try:
+        with open(path, "rb") as f:
+            return b"rpi.alsc" in f.read(16 << 20)
+    except OSError:
+        return False
