@@ -24,11 +24,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
+from PIL import Image
 
 from conftest import simulated_calibration
 from picamcal import OutputError
 from picamcal.batch import BatchOptions, claims, run_batch
 from picamcal.cli import main
+from picamcal.export.tuning import stock_tuning_path
 from picamcal.output import OUTPUT_SUFFIXES, write_corrected
 from picamcal.output.provenance import read_record
 from picamcal.raw import read_raw, write_dng
@@ -140,6 +142,31 @@ def test_several_differing_settings_are_each_named(data, tmp_path):
     assert [found for _, found in again.kept] == [
         ["mode flat, now centre", "format float32-tiff, now uint16-tiff", "Bayer pattern BGGR, now RGGB"]
     ] * FRAMES
+
+
+def test_a_reference_file_counts_by_its_content_and_an_input_encoding_is_named(data, tmp_path, monkeypatch):
+    """The tuning file of an sRGB output's colour matrix: the same file named from another folder, or renamed, is
+    the same setting; another content is not. Processed images: the input encoding."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(stock_tuning_path("imx219", "pisp"), "t.json")
+    frame, out = data["frames"] / "f0.dng", tmp_path / "out"
+
+    def srgb(tuning: Path) -> BatchOptions:
+        return BatchOptions(out_dir=out, workers=0, output_format="srgb-png", tuning=tuning)
+
+    assert run_batch(data["cal"], [frame], srgb(Path("t.json"))).done == [frame]
+    assert run_batch(data["cal"], [frame], srgb(tmp_path / "t.json")).skipped == [frame]
+    shutil.copy("t.json", "u.json")
+    assert run_batch(data["cal"], [frame], srgb(Path("u.json"))).skipped == [frame]
+    Path("v.json").write_text(json.dumps(json.loads(Path("t.json").read_text())))  # other bytes: another file
+    assert run_batch(data["cal"], [frame], srgb(Path("v.json"))).kept == [(frame, ["tuning file t.json, now v.json"])]
+
+    rgb = np.full((120, 160, 3), 128, np.uint8)
+    Image.fromarray(rgb).save("isp.png")
+    processed = tmp_path / "processed"
+    run_batch(data["cal"], ["isp.png"], BatchOptions(out_dir=processed, workers=0, processed=True))
+    linear = BatchOptions(out_dir=processed, workers=0, processed=True, input_encoding="linear")
+    assert run_batch(data["cal"], ["isp.png"], linear).kept == [(Path("isp.png"), ["input encoding srgb, now linear"])]
 
 
 FORMATS = ["float32-tiff", "uint16-tiff", "srgb-png", "srgb-png16", "srgb-jpeg", "linear-dng", "dng-gainmap"]

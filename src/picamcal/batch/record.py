@@ -86,7 +86,8 @@ def batch_settings(
     """The settings of a batch as its outputs record them (JSON values): :func:`made_with` without the file's part.
 
     ``white`` and ``tuning`` are :func:`file_identity` values; ``input_encoding`` counts for processed images only
-    and the tuning file for processed images and sRGB outputs only (elsewhere they change nothing).
+    (an encoding ``tuning:FILE`` recorded by the file's name and content) and the tuning file for processed images
+    and sRGB outputs only (elsewhere they change nothing).
 
     Examples
     --------
@@ -105,7 +106,7 @@ def batch_settings(
         "processed": bool(processed),
         "output_format": output_format,
         "compression": compression,
-        "input_encoding": input_encoding if processed else None,
+        "input_encoding": _encoding(input_encoding) if processed else None,
         "white": dict(white) if white is not None and processed else None,
         "tuning": dict(tuning) if tuning is not None and colour_from_tuning else None,
     }
@@ -167,8 +168,8 @@ def differences(recorded: Mapping[str, Any] | None, current: Mapping[str, Any]) 
         old = recorded.get(key)
         if key in _FILE_DECIDES and new is not None and old is None and key in used:
             old = used[key]  # the file decided it then: the same if it decided what is given now
-        if old == new:
-            continue
+        if old == new or (key in ("white", "tuning") and _sha256(old) == _sha256(new) is not None):
+            continue  # a reference file counts by its content, whatever its name
         found.append(_difference(key, name, old, new, recorded, current))
     return found
 
@@ -187,6 +188,10 @@ def _difference(
         return f"{name} {_file(old)}, now {'another ' if _file(old) == _file(new) else ''}{_file(new)}"
     given = "the file's own" if key in _FILE_DECIDES else "none"
     return f"{name} {_shown(old, given)}, now {_shown(new, given)}"
+
+
+def _sha256(identity: Any) -> str | None:
+    return identity.get("sha256") if isinstance(identity, Mapping) else None
 
 
 def _file(identity: Any) -> str:
@@ -222,6 +227,16 @@ def summary(kept: Sequence[tuple[Any, Sequence[str]]], most: int = 3) -> str:
     ordered = sorted(counts, key=lambda text: -counts[text])
     more = len(ordered) - most
     return "; ".join(ordered[:most]) + (f"; and {more} more" if more > 0 else "")
+
+
+def _encoding(encoding: str | None) -> str | None:
+    """An input encoding as recorded: ``tuning:FILE`` by the file's name and the start of its SHA-256, so that the
+    same file named from another folder is the same encoding."""
+    if encoding is None or not encoding.startswith("tuning:"):
+        return encoding
+    identity = file_identity(encoding.removeprefix("tuning:"))
+    assert identity is not None
+    return f"tuning:{identity['name']} ({identity['sha256'][:12]})"
 
 
 def _four(value: Any) -> list[float | None]:
