@@ -168,8 +168,10 @@ def report_cmd(
     """Write an HTML report: diagnostics with verdicts, maps, and before/after evidence from test images."""
     from ..analysis.wheels import read_layout
     from ..calibration import load_calibration
+    from ..export.tables import refuse_table
     from ..report import write_report
 
+    refuse_table(calibration, "the report")  # a lens shading table is told what takes it
     cal = load_calibration(calibration)
     target_layout = read_layout(layout) if layout is not None else None
     with console().status("writing the report") as status:

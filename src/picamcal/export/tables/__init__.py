@@ -41,6 +41,7 @@ __all__ = [
     "is_shading_table",
     "load_flat_field",
     "read_shading_table",
+    "refuse_table",
     "table_calibration",
     "table_gains",
     "table_sensor",
@@ -302,5 +303,44 @@ def _has_alsc(path: Path) -> bool:
     try:
         with open(path, "rb") as f:
             return b"rpi.alsc" in f.read(16 << 20)
+    except OSError:
+        return False
+
+
+def refuse_table(path: str | os.PathLike[str], needs: str) -> None:
+    """Raise TableFileError if ``path`` is a lens shading table, where a command ``needs`` a picamcal calibration:
+    the message says what the file is and what takes it (``export-tuning``).
+
+    Examples
+    --------
+    >>> np.save("lst.npy", np.full((4, 39, 52), 40, np.uint8))
+    >>> refuse_table("lst.npy", "the report")
+    Traceback (most recent call last):
+    ...
+    picamcal.export.tables.model.TableFileError: lst.npy: this is a legacy lens shading table (.npy, picamcal \
+export-lst), not a calibration: the report needs one from the reference images (picamcal calibrate); the table's \
+flat field goes into the camera with picamcal export-tuning lst.npy
+    """
+    path = Path(path)
+    if not (looks_like_table(path) or _has_alsc(path)):
+        return
+    kind = FORMATS["tuning"] if _has_alsc(path) else _table_format(path)
+    raise TableFileError(
+        f"this is {'an' if kind[0] in 'aeiouAEIOU' else 'a'} {kind}, not a calibration: {needs} needs one from the reference images (picamcal calibrate); "
+        f"the table's flat field goes into the camera with picamcal export-tuning {path.name}",
+        path,
+    )
+
+
+def _table_format(path: Path) -> str:
+    if is_header_file(path):
+        return FORMATS["c-header"]
+    return FORMATS["openflexure"] if _is_zip(path) else FORMATS["npy"]
+
+
+def _is_zip(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == _ZIP
     except OSError:
         return False
