@@ -325,9 +325,10 @@ flat field goes into the camera with picamcal export-tuning lst.npy
     if not (looks_like_table(path) or _has_alsc(path)):
         return
     kind = FORMATS["tuning"] if _has_alsc(path) else _table_format(path)
+    article = "an" if kind[0] in "aeiouAEIOU" else "a"
     raise TableFileError(
-        f"this is {'an' if kind[0] in 'aeiouAEIOU' else 'a'} {kind}, not a calibration: {needs} needs one from the reference images (picamcal calibrate); "
-        f"the table's flat field goes into the camera with picamcal export-tuning {path.name}",
+        f"this is {article} {kind}, not a calibration: {needs} needs one from the reference images (picamcal "
+        f"calibrate); the table's flat field goes into the camera with picamcal export-tuning {path.name}",
         path,
     )
 
