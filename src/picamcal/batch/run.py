@@ -22,9 +22,10 @@ from .._atomic import (
     refuse_inputs_as_output,
     remove_stale_temporaries,
 )
-from ..calibration import Calibration, load_calibration
+from ..calibration import Calibration
 from ..correct import choose_mode
 from ..errors import OutputError, PicamcalError, PicamcalWarning
+from ..export.tables import load_flat_field
 from ..export.tuning import load_tuning
 from ..modes import Mode, best_mode_reason
 from ..output import OUTPUT_SUFFIXES, camera_to_srgb, is_picamcal_output, output_bytes
@@ -232,7 +233,8 @@ def _run(
     interrupt: Interrupt,
 ) -> BatchResult:
     decode = _check_files(options)
-    cal = load_calibration(calibration_path)
+    # A lens shading table a user has (OpenFlexure's, a tuning file) is its flat field, for the raw frames' sensor.
+    cal = load_flat_field(calibration_path, options.sensor)
     mode = choose_mode(cal, options.mode)  # a flat-field calibration has no centre or pure mode: say so before work
     if options.output_format == "dng-gainmap":  # a flat field beyond the opcode's gains: say so before any work
         from ..raw import flat_field_gain_map

@@ -20,11 +20,12 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from ..calibration import Calibration, load_calibration
+from ..calibration import Calibration
 from ..calibration.resample import calibration_for_raw
 from ..correct import correct, correct_processed
 from ..errors import OutputError, PicamcalError, PicamcalWarning
 from ..export.isp import processed_geometry, processed_inputs
+from ..export.tables import load_flat_field
 from ..export.tuning import load_tuning
 from ..geometry import named_mode
 from ..kernels import fits
@@ -205,7 +206,7 @@ def calibration_of(settings: Settings) -> Calibration:
             raise PicamcalError("no such calibration file", path)
         if sha256_file(path) != settings.calibration_sha256:
             raise PicamcalError("is not the calibration the batch started with (it changed, or is another file)", path)
-        return load_calibration(path)
+        return load_flat_field(path, settings.read_options.get("sensor"))  # a calibration, or a table's flat field
 
     return _cached(("calibration", settings.calibration, settings.calibration_sha256), load)
 
