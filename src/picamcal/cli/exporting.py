@@ -185,7 +185,13 @@ def export_lst_cmd(
 
 @app.command("apply-tuning")
 def apply_tuning_cmd(
-    tuning_file: Annotated[Path, typer.Argument(help="libcamera tuning file (.json).")],
+    tuning_file: Annotated[
+        Path,
+        typer.Argument(
+            help="libcamera tuning file (.json); or a legacy lens shading table (.npy, an OpenFlexure "
+            "microscope_settings.npz, a C header), applied through the sensor's Pi 5 tuning."
+        ),
+    ],
     image: Annotated[Path, typer.Argument(help="Raw image.")],
     out: Annotated[
         Path,
@@ -234,7 +240,8 @@ def apply_tuning_cmd(
     import numpy as np
 
     from ..export.isp import applied_colour_gains, apply_tuning, full_sensor_size, mode_for_image
-    from ..export.tuning import load_tuning
+    from ..export.tables import looks_like_table
+    from ..export.tuning import load_tuning, table_tuning
     from ..output import NO_MATRIX, ColourMatrix, is_picamcal_output, write_corrected
     from ..raw.model import raw_geometry
 
@@ -255,9 +262,13 @@ def apply_tuning_cmd(
         )
     crop_box: tuple[int, int, int, int] | None = sensor_crop  # type: ignore[assignment]  # the option's callback parsed it
     given_size = parse_size(sensor_size, "--sensor-size")
-    tuning = load_tuning(tuning_file)
     headless = {"raw_format": raw_format, "size": size, "stride": stride, "frame": frame, "sensor": raw_sensor}
-    raw = reader(pattern, black_level, **headless)(image)
+    if looks_like_table(tuning_file):  # a legacy table: its flat field through the sensor's Pi 5 tuning
+        raw = reader(pattern, black_level, **headless)(image)
+        tuning = table_tuning(tuning_file, raw_sensor or raw.sensor)
+    else:
+        tuning = load_tuning(tuning_file)
+        raw = reader(pattern, black_level, **headless)(image)
     image_size = (raw.width, raw.height)
     if given_size is not None:
         mode = mode_for_image(given_size, image_size, crop_box)

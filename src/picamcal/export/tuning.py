@@ -409,6 +409,25 @@ reference images with picamcal calibrate, then export that .npz
         ) from None
 
 
+def table_tuning(path: str | os.PathLike[str], sensor: str | None = None, target: str = "pisp") -> dict[str, Any]:
+    """The tuning a lens shading table gives a camera: its flat field
+    (:func:`picamcal.export.tables.load_flat_field`) exported into the sensor's stock tuning file for ``target``
+    (:func:`export_tuning`); what ``apply-tuning`` applies for a legacy table.
+
+    Examples
+    --------
+    >>> np.save("lst.npy", np.full((4, 39, 52), 40, np.uint8))
+    >>> tuning = table_tuning("lst.npy")
+    >>> tuning["target"], "colour_gains" in tuning["picamcal"]  # a table keeps no colour balance
+    ('pisp', False)
+    """
+    from .tables import load_flat_field
+
+    calibration = load_flat_field(path, sensor)
+    chosen = export_bases(calibration, targets=[target])
+    return export_tuning(calibration, load_export_base(chosen.paths[0], chosen), base_path=chosen.paths[0])
+
+
 def neutral_tuning(stock: dict[str, Any]) -> dict[str, Any]:
     """A copy of a libcamera tuning with a static unity lens shading table, so nothing adapts the shading.
 
