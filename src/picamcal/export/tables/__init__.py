@@ -123,7 +123,8 @@ def is_shading_table(path: str | os.PathLike[str]) -> bool:
 
 def looks_like_table(path: str | os.PathLike[str]) -> bool:
     """True if ``path`` is, by its first bytes or name, of a kind :func:`read_shading_table` reads, whether or not it
-    reads: an ``.npy`` of a 3-dimensional array of four planes, an ``.npz`` with a ``lens_shading_table``, a C header.
+    reads: an ``.npy`` of planes (a 3-dimensional array, the fewest first), an ``.npz`` with a ``lens_shading_table``,
+    a C header.
 
     Examples
     --------
@@ -148,7 +149,7 @@ def looks_like_table(path: str | os.PathLike[str]) -> bool:
             shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
         except Exception:  # numpy's header parser raises many types: not a table
             return False
-        return len(shape) == 3 and shape[0] == 4
+        return len(shape) == 3 and shape[0] < min(shape[1:])  # planes first: a table (an image's would be last)
     return False
 
 
