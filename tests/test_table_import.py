@@ -279,7 +279,7 @@ def _assert_refused(tmp_path: Path, source: Path, *fragments: str, extra: tuple[
 
 def test_a_table_of_an_unknown_shape_is_refused(tmp_path):
     np.save(tmp_path / "odd.npy", np.full((4, 10, 10), 40, np.uint8))
-    _assert_refused(tmp_path, tmp_path / "odd.npy", "shape (4, 10, 10)", "--sensor")
+    _assert_refused(tmp_path, tmp_path / "odd.npy", "shape (4, 10, 10) fits no sensor", "(4, 39, 52) for the IMX219")
     np.save(tmp_path / "three.npy", np.full((3, 39, 52), 40, np.uint8))
     _assert_refused(tmp_path, tmp_path / "three.npy", "shape (3, 39, 52)", "expected (4, rows, columns)")
 

@@ -77,18 +77,24 @@ def table_sensor(table: ShadingTable, sensor: str | None = None) -> Sensor:
     if table.legacy is not None:
         shape = table.legacy.shape
         candidates = legacy_sensors(shape)
+        if not candidates:
+            raise TableFileError(
+                f"a table of shape {shape} fits no sensor picamcal knows: expected the table of a whole sensor of "
+                "W x H pixels, (4, H // 64 + 1, W // 64 + 1), such as (4, 39, 52) for the IMX219",
+                table.path,
+            )
         if chosen is None:
             if len(candidates) != 1:
-                which = f"one of {or_list(candidates)}" if candidates else "a sensor picamcal knows"
                 raise TableFileError(
-                    f"a legacy table of shape {shape} does not say its sensor: name it with --sensor ({which})",
+                    f"a legacy table of shape {shape} does not say its sensor: name it with --sensor "
+                    f"({or_list(candidates)})",
                     table.path,
                 )
             chosen = candidates[0]
         entry = SENSORS[chosen]
         expected = table_shape(entry.width, entry.height)
         if expected != shape:
-            fits = f" (it fits the {or_list(candidates)})" if candidates else ""
+            fits = f" (it fits the {or_list(candidates)})"
             raise TableFileError(
                 f"a table of shape {shape} is not the {chosen}'s: its {entry.width}x{entry.height} sensor has tables "
                 f"of shape {expected}{fits}",
