@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 import picamcal
 from picamcal import PicamcalError, PicamcalWarning
 from picamcal.bayer import bin_sites
-from picamcal.export.isp import apply_tuning, channel_tables
+from picamcal.export.isp import apply_tuning, channel_tables, lens_shading_gains_at
 from picamcal.export.legacy import legacy_table, table_shape
 from picamcal.export.tables import (
     TableFileError,
@@ -106,7 +106,8 @@ def test_a_pi_4_tuning_converted_to_the_pi_5_and_back_is_within_half_a_percent_i
     for source, target, out in ((vc4, "pisp", pisp), (pisp, "vc4", back)):
         result = run("export-tuning", str(source), "--target", target, "--out", str(out))
         assert result.returncode == 0, result.stderr
-        assert f"base {stock_tuning_path('imx219', target)}" in result.stdout  # the stock file of the target
+        said = result.stdout + result.stderr
+        assert f"base {stock_tuning_path('imx219', target)}" in said  # the stock file of the target
     full = SensorMode.full(*IMX219)
     original, returned = channel_tables(tuning, full), channel_tables(load_tuning(back), full)
     # Resampled as libcamera samples each grid, not zoomed: measured 0.18 % at most.
@@ -116,25 +117,22 @@ def test_a_pi_4_tuning_converted_to_the_pi_5_and_back_is_within_half_a_percent_i
 @pytest.mark.slow
 def test_a_stock_tuning_with_several_colour_temperatures_converts_at_its_default_one(tmp_path):
     flat = table_calibration(read_shading_table(stock_tuning_path("imx219", "bcm2835")))
-    assert flat.provenance["imported_table"]["cts"] == [3000, 3850, 6000]
+    assert list(flat.provenance["imported_table"]["cts"]) == [3000, 3850, 6000]
     assert flat.provenance["imported_table"]["ct"] == 4500.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PicamcalWarning)
         pisp = export_tuning(flat, load_tuning(stock_tuning_path("imx219", "pisp")))
+    # The Pi 5's finer grid holds the Pi 4's field within 1 % everywhere (the stock lens' steep corners included):
+    # compared at the centre of each Pi 4 cell, each normalised at the frame's centre.
     full = SensorMode.full(*IMX219)
-    stock = channel_tables(load_tuning(stock_tuning_path("imx219", "bcm2835")), full)
-    converted = channel_tables(pisp, full)
-    # The Pi 5's finer grid holds the Pi 4's field within 1 % everywhere (the stock lens' steep corners included),
-    # at the centre of each Pi 4 cell, where both are sampled alike.
-    from picamcal.export.isp import lens_shading_gains_at
-
     rows = (np.arange(12) + 0.5) * IMX219[1] / 12 - 0.5
     cols = (np.arange(16) + 0.5) * IMX219[0] / 16 - 0.5
-    a = lens_shading_gains_at(load_tuning(stock_tuning_path("imx219", "bcm2835")), full, rows, cols)
-    b = lens_shading_gains_at(pisp, full, rows, cols)
-    ratio = (b / b[:, 5:7, 7:9].mean()) / (a / a[:, 5:7, 7:9].mean())
+    stock = lens_shading_gains_at(load_tuning(stock_tuning_path("imx219", "bcm2835")), full, rows, cols)
+    converted = lens_shading_gains_at(pisp, full, rows, cols)
+    ratio = (converted / converted[:, 5:7, 7:9].mean(axis=(1, 2), keepdims=True)) / (
+        stock / stock[:, 5:7, 7:9].mean(axis=(1, 2), keepdims=True)
+    )
     assert float(np.abs(ratio - 1).max()) < 0.01, ratio
-    assert stock.shape == (3, 12, 16) and converted.shape == (3, 32, 32)
 
 
 @pytest.mark.slow
@@ -143,7 +141,7 @@ def test_correct_and_apply_tuning_use_a_table_as_the_flat_field(microscope, tmp_
     result = run("correct", str(folder / "microscope_settings.npz"), str(microscope["white_path"]), "--out",
                  str(tmp_path / "corrected"), "--workers", "0")  # fmt: skip
     assert result.returncode == 0, result.stderr
-    assert "in mode flat" in result.stdout
+    assert "in mode flat" in result.stdout + result.stderr
     import tifffile
 
     corrected = tifffile.imread(tmp_path / "corrected" / "white.tiff")
