@@ -361,11 +361,11 @@ def export_bases(
         )
     if not variant and not stock_tuning_files(chosen):
         paths = [generic_tuning_path(target) for target in targets]
-        note = (
+        generic = (
             f"Raspberry Pi ships no tuning file for the {chosen}: started from libcamera's {GENERIC_TUNING}.json "
             f"(bundled with picamcal, its black level set to the {chosen}'s); give the sensor's own with --base"
         )
-        return ExportBases(paths, chosen, chosen, note, generic=True)
+        return ExportBases(paths, chosen, chosen, generic, generic=True)
     paths, note = stock_tuning_bases(chosen, targets, variant)
     variant = (variant or "").lower().replace("-", "_")
     return ExportBases(paths, chosen, f"{chosen}_{variant}" if variant else chosen, note)

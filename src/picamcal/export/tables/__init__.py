@@ -33,7 +33,6 @@ from .openflexure import is_openflexure_npz, npz_keys, read_openflexure_table
 from .tuning_file import read_tuning_table
 
 __all__ = [
-    "FORMATS",
     "ShadingTable",
     "TableFileError",
     "describe_table",

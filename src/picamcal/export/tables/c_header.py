@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +76,9 @@ def _literal(text: str) -> int | None:
     return int(digits, 16 if digits[:2].lower() == "0x" else 8 if len(digits) > 1 and digits[0] == "0" else 10)
 
 
-def read_header_table(path: str | os.PathLike[str], shapes: list[tuple[int, int]] = ()) -> tuple[np.ndarray, dict]:
+def read_header_table(
+    path: str | os.PathLike[str], shapes: Sequence[tuple[int, int]] = ()
+) -> tuple[np.ndarray, dict[str, Any]]:
     """The legacy table (uint8, (4, rows, cols)) of a C header, and what else the header says (``ref_transform``,
     ``grid_width``, ``grid_height``).
 
@@ -147,7 +150,9 @@ def read_header_table(path: str | os.PathLike[str], shapes: list[tuple[int, int]
     return check_legacy_gains(table, path), said
 
 
-def _grid(count: int, said: dict[str, Any], per_line: list[int], shapes: list[tuple[int, int]]) -> tuple | None:
+def _grid(
+    count: int, said: dict[str, Any], per_line: list[int], shapes: Sequence[tuple[int, int]]
+) -> tuple[int, int] | None:
     """(rows, columns) of a table of ``count`` numbers, or None."""
     if count % 4 or count == 0:
         return None

@@ -7,6 +7,7 @@ of its sensor.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,7 +73,7 @@ class ShadingTable:
         return FORMATS[self.kind]
 
 
-def check_legacy_gains(table: np.ndarray, path: str | Path) -> np.ndarray:
+def check_legacy_gains(table: np.ndarray, path: str | os.PathLike[str]) -> np.ndarray:
     """``table`` as a legacy table (uint8, (4, rows, cols)), or TableFileError naming ``path`` and what was expected.
 
     Values must be whole numbers 1..255 (u3.5 gains, 32 = 1.0): a zero is a gain of 0, which no flat field has.
