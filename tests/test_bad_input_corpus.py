@@ -1041,8 +1041,9 @@ case("demo --overwrite a folder with a calibration", lambda d, b: ["demo", "--si
      "calibration.npz")  # fmt: skip
 case("calibrate --out a folder", lambda d, b: ["calibrate", "--white", b / "sim" / "white.dng", "--out",
      foreign("cal.npz/")(d, b), "--overwrite"], "cal.npz")  # fmt: skip
-case("calibrate --out in a missing folder", lambda d, b: ["calibrate", "--white", b / "sim" / "white.dng", "--out",
-     d / "missing" / "cal.npz"], "cal.npz")  # fmt: skip
+# A missing folder is made (--out newdir/cal.npz); a file in the way of one is refused, and kept.
+case("calibrate --out under a file", lambda d, b: ["calibrate", "--white", b / "sim" / "white.dng", "--out",
+     write(d / "notes.txt", "focus at 3 mm") / "cal.npz"], "cal.npz", "a file is in the way")  # fmt: skip
 
 
 # ================================================================================== the shared run and the runs
