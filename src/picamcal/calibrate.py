@@ -117,8 +117,9 @@ def check_dark_settings(dark: RawImage, white: RawImage) -> None:
     gains = "analogue_gain" if all(raw.metadata.get("analogue_gain") for raw in (dark, white)) else "iso"
     settings.append(("analogue gain" if gains == "analogue_gain" else "ISO", gains, 1.0, ""))
     for what, key, scale, unit in settings:
-        pair = [raw.metadata.get(key) for raw in (dark, white)]
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in pair):
+        given = (dark.metadata.get(key), white.metadata.get(key))
+        pair = [float(v) for v in given if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0]
+        if len(pair) < 2:  # a file that does not say: nothing to compare
             continue
         if abs(pair[0] - pair[1]) > DARK_SETTINGS_TOLERANCE * pair[1]:
             values = [f"{scale * v:.4g}{unit}" for v in pair]

@@ -235,7 +235,7 @@ def with_known_black_level(raw: RawImage, calibration: Calibration) -> RawImage:
         PicamcalWarning,
         stacklevel=2,
     )
-    return dataclasses.replace(raw, black_level=tuple(float(v) for v in black))
+    return dataclasses.replace(raw, black_level=(float(black[0]), float(black[1]), float(black[2]), float(black[3])))
 
 
 def warn_if_clipped(raw: RawImage) -> float:
