@@ -405,7 +405,8 @@ def test_inspect_of_an_empty_folder_is_one_error_line_as_its_help_says(cli, tmp_
         (folder / ".DS_Store").write_bytes(b"\0")
     code, err, out = cli("inspect", folder)
     assert (code, out) == (2, "")
-    assert err == [f"picamcal: error: {folder}: no images in this folder: it is empty"]
+    what = "it holds only hidden files and folders (.DS_Store), which are not read" if hidden else "it is empty"
+    assert err == [f"picamcal: error: {folder}: no images in this folder: {what}"]
     group = typer.main.get_command(app)
     help_text = " ".join(group.get_command(click.Context(group), "inspect").help.split())
     assert "A folder that is empty or holds only files that are not images" in help_text

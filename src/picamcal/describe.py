@@ -335,6 +335,18 @@ def files_of(items: list[Path]) -> list[Path]:
     return found
 
 
+def _nothing(folder: Path) -> str:
+    """What a folder holds when it holds no file to list: nothing, or only hidden entries and folders (named)."""
+    try:
+        names = sorted(entry.name for entry in os.scandir(folder))
+    except OSError:
+        names = []
+    if not names:
+        return "it is empty"
+    listed = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+    return f"it holds only hidden files and folders ({listed}), which are not read"
+
+
 def inspect_files(items: list[Path], read: Callable[[Path], RawImage] = read_raw) -> list[dict[str, Any]]:
     """What ``picamcal inspect`` lists: :func:`survey` of each file as given and of every file of each folder, each
     record with the ``"warnings"`` reading it gave (without the file's name, which the listing shows).
@@ -374,7 +386,7 @@ def inspect_files(items: list[Path], read: Callable[[Path], RawImage] = read_raw
         if item.is_dir() and len(others) == len(found):
             listed = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
             what = (
-                f"only {len(others)} other file{'s' if len(others) > 1 else ''}: {listed}" if others else "it is empty"
+                f"only {len(others)} other file{'s' if len(others) > 1 else ''}: {listed}" if others else _nothing(item)
             )
             raise PicamcalError(f"no images in this folder: {what}", item)
         records += found
