@@ -125,7 +125,7 @@ def legacy_gains(table: np.ndarray, rounding: str = "nearest") -> np.ndarray:
     sy, sx = _smoother(rows), _smoother(cols)
     gains = steps.copy()
     for _ in range(DEQUANTISE_ITERATIONS):
-        gains = np.clip(np.einsum("ij,pjk,lk->pil", sy, gains, sx), lo, hi)
+        gains = np.clip(sy @ gains @ sx.T, lo, hi)
     return gains / UNITY
 
 
