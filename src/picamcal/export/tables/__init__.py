@@ -17,6 +17,7 @@ gives any of them, or a picamcal calibration, as a :class:`~picamcal.calibration
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,7 @@ import numpy as np
 from ...calibration import Calibration
 from ...limits import require_regular_file
 from ..legacy import UNITY
-from .c_header import is_header_file, read_header_table
+from .c_header import MAX_HEADER_BYTES, is_header_file, read_header_table
 from .flat_field import legacy_sensors, table_calibration, table_gains, table_sensor
 from .model import FORMATS, ShadingTable, TableFileError
 from .npy import NPY_MAGIC, read_npy_table
@@ -269,6 +270,8 @@ gains 1.25 to 1.25 (unity: 32 in u3.5)'
     path = Path(path)
     if not (looks_like_table(path) or _has_alsc(path)):
         return None
+    if is_header_file(path) and not _has_braces(path):  # C source of something else, in a folder listed
+        return None
     try:
         record = describe_table(read_shading_table(path))
     except TableFileError as exc:
@@ -283,6 +286,15 @@ gains 1.25 to 1.25 (unity: 32 in u3.5)'
     if record.get("adaptive"):
         about.append("adaptive (n_iter > 0): its tables are the start")
     return {**record, "format": f"{record['format']}: {'; '.join(about)}", "readable": True}
+
+
+def _has_braces(path: Path) -> bool:
+    """Whether a C source holds a brace initialiser's ``= {`` at all (a table's header does)."""
+    try:
+        with open(path, "rb") as f:
+            return re.search(rb"=\s*\{", f.read(MAX_HEADER_BYTES)) is not None
+    except OSError:
+        return False
 
 
 def _unsaid(record: dict[str, Any]) -> str:
