@@ -10,6 +10,8 @@ An interrupted batch (SIGINT as Ctrl-C sends it, to the whole process group; SIG
 the command alone, or as ``timeout`` and systemd do, to the whole group) must start no new file, leave no
 temporary and no process, and end with one line saying how many files it wrote and that running it again
 resumes, with exit status 130 or 143. The signal lands when some outputs are finished, not after a fixed time.
+The count it says is exactly the outputs on disk: on a dask cluster, whose workers outlive the command, the writes
+under way at the signal end after it, and a test slows them past the grace so that this race is certain.
 """
 
 from __future__ import annotations
@@ -438,9 +440,117 @@ def test_an_interrupted_batch_on_a_dask_cluster_stops_its_tasks(pngs, tmp_path):
     # No new file once the tasks see the stop: besides the files finished when the signal came, at most those each
     # of the two workers' pipelines held (being read, read ahead, in its output slots), as for a pool; a worker
     # asks the scheduler every 0.2 s, and the command sets the stop a moment after the signal, longer on a busy
-    # machine (on a slow host one run finished 7 files of 16 with 2 finished at the signal).
+    # machine (on a slow host one run finished 7 files of 16 with 2 finished at the signal). The command waits for
+    # the writes under way on the cluster, however busy the machine: the count it says is what is on disk.
     in_flight = 1 + READ_AHEAD + OUTPUT_SLOTS
     assert set(seen) <= set(finished) and len(finished) <= len(seen) + in_flight * 2 < INTERRUPTED_FRAMES
     assert temporaries(out) == []
     for name in finished:
         assert (out / name).read_bytes() == (pngs["reference"] / name).read_bytes(), name
+
+
+#: Seconds every output's write lasts on the slowed cluster below: well past the batch's grace (stopping.GRACE_S), so
+#: that the signal surely lands while writes are under way that end after the grace.
+SLOW_WRITE_S = 3.0
+
+
+@pytest.fixture
+def cluster():
+    """A dask cluster of two worker processes, this test process's, which outlives the commands run on it as a shared
+    cluster does, and a client of it. This module's functions go to its workers by value (they cannot import it)."""
+    distributed = pytest.importorskip("distributed")
+    cloudpickle = pytest.importorskip("cloudpickle")
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    try:
+        with (
+            distributed.LocalCluster(
+                n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None
+            ) as cluster,
+            distributed.Client(cluster) as client,
+        ):
+            yield cluster, client
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+
+
+def slow_writes(folder: str, seconds: float) -> None:
+    """In a dask worker (``client.run``): every output's write first says so in ``folder`` (a file of the output's
+    name), then begins ``seconds`` later (:func:`usual_writes` undoes it)."""
+    from picamcal.batch import worker
+
+    write = worker._write
+
+    def slow(settings, job, *args, **kwargs):
+        Path(folder, Path(job.target).name).touch()
+        time.sleep(seconds)
+        return write(settings, job, *args, **kwargs)
+
+    slow.__wrapped__ = write
+    worker._write = slow
+
+
+def usual_writes() -> None:
+    from picamcal.batch import worker
+
+    worker._write = worker._write.__wrapped__
+
+
+def pipeline_threads() -> list[str]:
+    """In a dask worker (``client.run``): the threads of picamcal's pipelines still at work (a write among them)."""
+    import threading
+
+    return [thread.name for thread in threading.enumerate() if thread.name in ("picamcal-read", "picamcal-write")]
+
+
+@pytest.mark.slow
+def test_a_write_on_a_cluster_that_outlasts_the_grace_is_counted_and_the_count_is_what_is_on_disk(
+    pngs, tmp_path, cluster
+):
+    """A dask worker outlives the batch (a shared cluster): a write under way there when the batch is interrupted
+    ends after the batch's grace, and the batch's count must include it, whatever the load. The slowed writes
+    (picamcal.batch.worker._write, replaced in each worker) make the race certain rather than a matter of timing.
+    Once no pipeline runs on the workers any more (nothing can land after), the count must be the outputs on disk."""
+    cluster, client = cluster
+    out = tmp_path / "out"
+    writing = tmp_path / "writing"  # where the slowed writes name the outputs they write
+    writing.mkdir()
+    client.run(slow_writes, str(writing), SLOW_WRITE_S)
+    args = ("correct", str(pngs["cal"]), str(pngs["frames"]), "--out", str(out))
+    args += ("--output-format", INTERRUPTED_FORMAT, "--scheduler", cluster.scheduler_address)
+    tag = uuid.uuid4().hex
+    process = subprocess.Popen(
+        command(*args),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, TAG: tag},
+        preexec_fn=as_from_a_terminal,
+    )
+    # The signal lands once an output is finished and another's write is under way (begun, not in place).
+    under_way: set[str] = set()
+    while process.poll() is None and not (
+        (seen := finished_outputs(out)) and (under_way := set(os.listdir(writing)) - set(seen))
+    ):
+        time.sleep(0.005)
+    assert process.poll() is None, "the batch finished before the signal"
+    os.kill(process.pid, signal.SIGINT)
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 130, stderr
+    assert_nothing_left_running(tag)
+    deadline = time.monotonic() + GONE_WITHIN_S  # a write the batch did not wait for would still land: wait
+    while any(client.run(pipeline_threads).values()) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(client.run(pipeline_threads).values()), "the workers' pipelines outlived the batch"
+    finished = assert_stopped_cleanly(out, pngs["reference"], stderr, seen, signal.SIGINT, 2, INTERRUPTED_FRAMES)
+    assert under_way <= set(finished)  # the writes under way at the signal ended, and were counted
+    assert "warning" not in stderr, stderr
+
+    client.run(usual_writes)
+    again = subprocess.run(command(*args), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"wrote {INTERRUPTED_FRAMES - len(finished)} image(s)" in again.stderr
+    assert f"skipped {len(finished)} (done already)" in again.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == {
+        p.name: p.read_bytes() for p in pngs["reference"].iterdir()
+    }

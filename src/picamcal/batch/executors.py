@@ -7,9 +7,13 @@ and writing over consecutive files; in this process the files go through one pip
 with the process that started them, however it ends (:func:`exit_with_parent`).
 
 An interrupted batch (:class:`~picamcal.batch.stopping.Interrupt`) stops each runner the same way: no task is
-submitted and no file started; the files in flight are finished within :data:`~picamcal.batch.stopping.GRACE_S`
-or dropped: a pool's workers are then killed (their temporaries are stale, for the batch to remove), a
-cluster's tasks are cancelled (a write under way on the cluster still ends whole or not at all).
+submitted and no file started, and the files in flight are finished or dropped, so that the count the batch
+reports is exactly the outputs it wrote. A pool's tasks have :data:`~picamcal.batch.stopping.GRACE_S` to finish;
+then its workers are killed (their writes end with them, their temporaries are stale, for the batch to remove). A
+task on a cluster cannot be stopped from outside (cancelled, it runs on in its worker, which outlives the batch),
+so the batch waits for the tasks in flight, each of which only ends the write it has under way, and gets their
+outcomes; only a task still running :data:`~picamcal.batch.stopping.CLUSTER_WAIT_S` seconds after the signal is
+cancelled, and a warning says that what it finishes is not in the count.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import socket
 import threading
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Generator, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -30,10 +35,20 @@ from multiprocessing.context import BaseContext
 from typing import Any
 
 from ..ckernel import c_available
-from ..errors import PicamcalError
+from ..errors import PicamcalError, PicamcalWarning
 from ..kernels import available_cores, numba_available, set_kernel_threads
-from .stopping import Interrupt
-from .worker import Job, Outcome, Settings, check_worker, outcomes, process_jobs, set_stop, stop_on_signal
+from .stopping import CLUSTER_WAIT_S, GRACE_S, Interrupt
+from .worker import (
+    Job,
+    Outcome,
+    Settings,
+    check_worker,
+    outcomes,
+    process_jobs,
+    set_stop,
+    stop_on_signal,
+    tasks_running,
+)
 
 #: The most files in one task: the pipeline's start and end (reading the first file, writing the last, not
 #: overlapped) are paid once per task, and the outcomes come back once per task.
@@ -95,7 +110,8 @@ def _chunked(
     """Run the tasks of ``jobs`` (:func:`chunks`), submitting as others finish so that at most ``runner.window``
     are in flight, and none once ``stop()`` is true or the batch is interrupted; each job's outcome as its task
     finishes. Interrupted, the tasks in flight are told to start no other file (``runner.interrupt``) and
-    waited for until the grace ends; then they are dropped (``runner.abandon``) and their files not reported."""
+    waited for ``runner.grace`` seconds after the signal; then those left are dropped (``runner.abandon``) and
+    their files not reported (the batch counts the outputs they put in place)."""
     queue = iter(chunks(jobs, runner.workers))
     in_flight: dict[Any, list[Job]] = {}
     while True:
@@ -110,7 +126,7 @@ def _chunked(
             return
         if interrupt.is_set():
             runner.interrupt()
-            if interrupt.expired():
+            if interrupt.expired(runner.grace):
                 runner.abandon(list(in_flight))
                 return
         for future in runner.finished(list(in_flight), _POLL_S):
@@ -135,6 +151,7 @@ class Pool:
         self.settings = settings
         self.workers = size
         self.window = 2 * size
+        self.grace = GRACE_S  # then the workers are killed, their writes with them
         self.context = _pool_context()
         self.stop = self.context.Event()  # the batch's interrupt, as the workers see it
         self.executor = self._executor()
@@ -230,6 +247,7 @@ class Dask:
         self.client = client
         self.workers = max(1, sum(client.nthreads().values()))
         self.window = 2 * self.workers
+        self.grace = CLUSTER_WAIT_S  # a task cannot be stopped from outside: each ends the write under way
         self.stop = Event(f"picamcal-stop-{uuid.uuid4().hex}", client=client)  # the interrupt, as tasks see it
         self.told = False
         self.settings = dataclasses.replace(settings, stop_event=self.stop.name)
@@ -251,8 +269,31 @@ class Dask:
             self.stop.set()
 
     def abandon(self, futures: list[Any]) -> None:
-        """Drop the tasks in flight (a write under way on a worker still ends whole or not at all)."""
+        """Drop the tasks still in flight :data:`~picamcal.batch.stopping.CLUSTER_WAIT_S` seconds after the signal.
+
+        Those queued never start. One a worker is executing runs on (dask cannot stop a thread) until its write
+        under way has ended, whole or not at all (:func:`~picamcal.batch.worker.process_jobs`); if the workers say
+        that some still run (:func:`~picamcal.batch.worker.tasks_running`), a warning says that the outputs they
+        finish are not in the batch's count.
+        """
         self.client.cancel(futures)
+        running = self.running()
+        if running:
+            warnings.warn(
+                f"{running} task(s) on the dask cluster were still writing {CLUSTER_WAIT_S:g} s after the signal: "
+                "the outputs they finish are not in this count (running the same command again skips them)",
+                PicamcalWarning,
+                stacklevel=2,
+            )
+
+    def running(self) -> int:
+        """How many tasks of this batch the cluster's workers are running (a worker that cannot say counts as one;
+        a worker gone has taken its tasks with it)."""
+        try:
+            answers = self.client.run(tasks_running, self.settings.run, on_error="return")
+        except Exception:  # the scheduler cannot be asked: nothing is known
+            return 1
+        return sum(answer if isinstance(answer, int) else 1 for answer in answers.values())
 
     def finished(self, futures: list[Any], timeout: float) -> Iterable[Any]:
         """The futures done, waiting ``timeout`` seconds at most for one (a future's state is kept up to date by

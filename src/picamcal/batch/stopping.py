@@ -1,9 +1,11 @@
 """Stopping a batch on SIGINT (Ctrl-C) or SIGTERM (systemd, ``timeout``, ``kill``) without leaving anything half done.
 
 While a batch works, :class:`Interrupt` catches the two signals: no new file is started, the files in flight
-are finished if they end within :data:`GRACE_S` seconds and dropped otherwise, the temporaries are removed, and
-``run_batch`` raises :class:`~picamcal.batch.run.BatchInterrupted`, which says how many files were written
-and that running the same batch again resumes it. Before the work starts (checks, planning), nothing is being
+are finished if they end within :data:`GRACE_S` seconds and dropped otherwise (on a dask cluster, whose tasks
+cannot be stopped from outside, each task's write under way is waited for, up to :data:`CLUSTER_WAIT_S`), the
+temporaries are removed, and ``run_batch`` raises :class:`~picamcal.batch.run.BatchInterrupted`, which says how
+many files were written (exactly the outputs the batch put in place) and that running the same batch again
+resumes it. Before the work starts (checks, planning), nothing is being
 written, and a signal stops the batch at once.
 """
 
@@ -17,6 +19,9 @@ from typing import Any
 
 #: Seconds the files in flight have to finish once a batch is interrupted; then they are dropped.
 GRACE_S = 0.8
+#: Seconds an interrupted batch on a dask cluster waits for its tasks in flight, each ending the write it has under
+#: way (a write takes seconds); a task still running then is cancelled, and a warning says what it may still write.
+CLUSTER_WAIT_S = 30.0
 #: The signals that stop a batch: Ctrl-C, and the polite request to end of systemd, ``timeout`` and ``kill``.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -71,9 +76,10 @@ class Interrupt:
         """Whether a stop signal came."""
         return self.signum is not None
 
-    def expired(self) -> bool:
-        """Whether the grace the files in flight had (:data:`GRACE_S`) is over."""
-        return self.since is not None and time.monotonic() - self.since > GRACE_S
+    def expired(self, grace: float = GRACE_S) -> bool:
+        """Whether the ``grace`` the files in flight had (:data:`GRACE_S`, or :data:`CLUSTER_WAIT_S` on a dask
+        cluster) is over."""
+        return self.since is not None and time.monotonic() - self.since > grace
 
     @property
     def signal_name(self) -> str:
@@ -81,4 +87,4 @@ class Interrupt:
         return "" if self.signum is None else signal.Signals(self.signum).name
 
 
-__all__ = ["GRACE_S", "STOP_SIGNALS", "Interrupt"]
+__all__ = ["CLUSTER_WAIT_S", "GRACE_S", "STOP_SIGNALS", "Interrupt"]

@@ -9,10 +9,12 @@ calibration by its path and SHA-256.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +42,7 @@ from ..raw.processed import ProcessedImage, read_processed
 from ..records import sha256_file
 from . import claims
 from .disk import PLACE_ERRORS
-from .pipeline import Finished, Slot, SlotPool, overlapped
+from .pipeline import CANCEL_GRACE_S, Finished, Slot, SlotPool, overlapped
 from .record import MADE_WITH, differences, made_with
 
 _T = TypeVar("_T")
@@ -149,6 +151,12 @@ _SLOTS = SlotPool()
 _STOP: Any = None
 #: Seconds between two looks at a dask cluster's stop event (each is a round trip to the scheduler).
 _DASK_LOOK_S = 0.2
+#: Per worker process: how many tasks of each batch (:attr:`Settings.run`) it is running (:func:`tasks_running`).
+_RUNNING: Counter[str] = Counter()
+_RUNNING_LOCK = threading.Lock()
+#: Seconds a task on a cluster, once the batch is interrupted, waits for the write under way: as long as it takes
+#: (a day stands for that; a write takes seconds).
+_CLUSTER_WRITE_WAIT_S = 86_400.0
 
 
 #: Per pool worker process: Ctrl-C reached it (the terminal sends it to the whole process group).
@@ -226,11 +234,45 @@ def process_jobs(settings: Settings, jobs: Sequence[Job]) -> list[Outcome]:
     Never raises for a problem with a file: each file's outcome says what went wrong, in one line. The files go
     through :func:`outcomes`, reading, correcting and writing overlapped. Once the batch is interrupted (the
     pool's event, :func:`set_stop`, or the cluster's, ``settings.stop_event``), no new file is started and the
-    files not done have no outcome.
+    files not done have no outcome. On a cluster the task ends only once the write under way has ended, however
+    long it takes: a dask worker lives on after the batch, and a write left to a thread of its own would put an
+    output in place after the batch counted what it wrote (a pool's worker ends with the batch, and its write
+    with it). While it runs, :func:`tasks_running` counts it.
     """
-    if settings.stop_event is not None:
-        return list(outcomes(settings, jobs, cancel=_dask_stop(settings.stop_event)))
-    return list(outcomes(settings, jobs, cancel=_stopped))
+    with _running(settings.run):
+        if settings.stop_event is not None:
+            cancel = _dask_stop(settings.stop_event)
+            return list(outcomes(settings, jobs, cancel=cancel, grace=_CLUSTER_WRITE_WAIT_S))
+        return list(outcomes(settings, jobs, cancel=_stopped))
+
+
+@contextlib.contextmanager
+def _running(run: str) -> Iterator[None]:
+    """Count a task of the batch ``run`` as running in this process while the block runs."""
+    with _RUNNING_LOCK:
+        _RUNNING[run] += 1
+    try:
+        yield
+    finally:
+        with _RUNNING_LOCK:
+            _RUNNING[run] -= 1
+            if _RUNNING[run] <= 0:
+                del _RUNNING[run]
+
+
+def tasks_running(run: str) -> int:
+    """How many tasks of the batch ``run`` (:attr:`Settings.run`) this process is running, their writes included.
+
+    An interrupted batch asks every dask worker (``client.run``) after it cancelled its tasks, for a task that was
+    executing goes on until it ends (:meth:`picamcal.batch.executors.Dask.abandon`).
+
+    Examples
+    --------
+    >>> tasks_running("a batch that never ran here")
+    0
+    """
+    with _RUNNING_LOCK:
+        return _RUNNING.get(run, 0)
 
 
 def _dask_stop(name: str) -> Callable[[], bool]:
@@ -250,11 +292,16 @@ def _dask_stop(name: str) -> Callable[[], bool]:
     return is_set
 
 
-def outcomes(settings: Settings, jobs: Sequence[Job], cancel: Callable[[], bool] | None = None) -> Iterator[Outcome]:
+def outcomes(
+    settings: Settings,
+    jobs: Sequence[Job],
+    cancel: Callable[[], bool] | None = None,
+    grace: float = CANCEL_GRACE_S,
+) -> Iterator[Outcome]:
     """Each job's outcome as it finishes, the jobs read, corrected and written at once
     (:func:`picamcal.batch.pipeline.overlapped`); after a failure of the output place itself (a full disk), or
     once ``cancel()`` is true (the batch was interrupted), nothing more is started and the jobs not done have
-    no outcome."""
+    no outcome. A cancelled run waits ``grace`` seconds for the write under way, then leaves it to its thread."""
     try:
         calibration_of(settings)  # once, here, before the stages' threads would each load it
     except PicamcalError as exc:
@@ -264,7 +311,14 @@ def outcomes(settings: Settings, jobs: Sequence[Job], cancel: Callable[[], bool]
     try:
         with _SLOTS.taken() as slots:
             for finished in overlapped(
-                jobs, stages.read, stages.correct, stages.write, fatal=_is_place_error, slots=slots, cancel=cancel
+                jobs,
+                stages.read,
+                stages.correct,
+                stages.write,
+                fatal=_is_place_error,
+                slots=slots,
+                cancel=cancel,
+                grace=grace,
             ):
                 stages.release(finished.job)  # written, failed or not this run's: the claim goes
                 yield _outcome(finished)
@@ -479,4 +533,5 @@ __all__ = [
     "process_jobs",
     "set_stop",
     "stop_on_signal",
+    "tasks_running",
 ]
