@@ -50,7 +50,7 @@ def test_contributing_gives_the_ci_command_and_the_fast_loop():
     assert commands, "CONTRIBUTING.md has no commands"
     lines = [line.split("#")[0].strip() for line in commands.group(1).splitlines()]
     assert quick_start_commands()[1] in lines
-    assert 'python3 -m pytest -m "not slow"' in lines
+    assert 'python3 -m pytest -n auto -m "not slow"' in lines
     assert "CONTRIBUTING.md" in (ROOT / "README.md").read_text().split("## Quick start", 1)[1].split("\n## ")[0]
 
 
