@@ -137,10 +137,11 @@ def test_bad_inputs(run_dir, tmp_path):
     )
     with pytest.raises(TuningError, match=r"ships no stock tuning file for the imx585: .*--base"):
         stock_tuning_path("imx585", "pisp")  # a registry sensor Raspberry Pi ships no tuning file for
+    (tmp_path / "no").write_text("a file where --out needs a folder")  # missing folders are made; a file is not
     assert_bad_input(
         run("export-tuning", cal, "--base", str(VC4), "--out", str(tmp_path / "no" / "such" / "o.json")),
         "o.json",
-        "cannot write",
+        "a file is in the way",
     )
     assert_bad_input(
         run("export-tuning", cal, "--base", str(VC4), "--out", str(VC4), "--overwrite"),

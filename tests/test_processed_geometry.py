@@ -14,14 +14,13 @@ from picamcal import calibrate, correct
 from picamcal.correct import correct_processed
 from picamcal.errors import CalibrationFileError, PicamcalError
 from picamcal.export.isp import (
-    default_scaler_crop,
     isp_gains_for_image,
     lens_shading_gains,
     processed_geometry,
     processed_inputs,
 )
 from picamcal.export.tuning import load_tuning, stock_tuning_path
-from picamcal.geometry import SensorMode, named_mode
+from picamcal.geometry import SensorMode, default_scaler_crop, named_mode
 from picamcal.raw.processed import ProcessedImage
 from picamcal.simulate import make_camera, simulate_references, simulate_target
 

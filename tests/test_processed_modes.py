@@ -23,9 +23,8 @@ import tifffile
 
 from picamcal import calibrate
 from picamcal.calibration.resample import resample_calibration
-from picamcal.export.isp import default_scaler_crop
 from picamcal.export.tuning import export_tuning, load_tuning, neutral_tuning, save_tuning, stock_tuning_path
-from picamcal.geometry import named_mode
+from picamcal.geometry import default_scaler_crop, named_mode
 from picamcal.simulate import make_camera, simulate_references
 from test_virtualcam_picamera2 import run_script
 

@@ -20,6 +20,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from .errors import PicamcalError
 from .sensors import SENSORS, DriverMode, sensor_modes
 
@@ -39,6 +41,8 @@ __all__ = [
     "GEOMETRY_SOURCES",
     "SensorMode",
     "assumed_geometry",
+    "check_scaler_crop",
+    "default_scaler_crop",
     "driver_geometry",
     "full_field_binning",
     "image_to_image",
@@ -50,6 +54,7 @@ __all__ = [
     "parse_sensor_mode",
     "registry_mode",
     "sensor_area",
+    "stream_positions",
 ]
 
 
@@ -470,3 +475,92 @@ def named_mode(sensor: str | None, text: str, what: str = "--sensor-mode") -> Se
         modes = ", ".join(f"{m.width}x{m.height}:{m.bit_depth}" for m in sensor_modes(entry.name))
         raise PicamcalError(f"{what} {text}: the {entry.name} has no such mode (it has {modes})")
     return driver_geometry(entry.size, matches[0], "given")
+
+
+def check_scaler_crop(mode: SensorMode, scaler_crop: Box, what: str = "ScalerCrop") -> Box:
+    """``scaler_crop`` as four whole numbers, checked to lie inside the sensor mode's crop (a stream shows only what
+    its mode reads: libcamera encloses the ISP's crop in the mode's image, ``applyScalerCrop`` in
+    ``src/libcamera/pipeline/rpi/common/pipeline_base.cpp``).
+
+    Raises
+    ------
+    PicamcalError
+        Not four numbers, an empty area, or an area outside the sensor or the mode's crop; one line naming ``what``.
+
+    Examples
+    --------
+    >>> binned = SensorMode.full(3280, 2464, binning=2)
+    >>> check_scaler_crop(binned, (820, 616, 1640, 1232))  # a 2x zoom
+    (820, 616, 1640, 1232)
+    >>> check_scaler_crop(SensorMode(3280, 2464, (680, 692, 1920, 1080)), (0, 0, 3280, 2464))
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: ScalerCrop 0,0,3280,2464 lies outside the sensor mode's crop (the 1920x1080 area \
+at (680, 692) of the 3280x2464 sensor): a stream shows only what its mode reads
+    """
+    try:
+        x, y, w, h = (int(v) for v in scaler_crop)
+    except (TypeError, ValueError):
+        raise PicamcalError(f"{what} {scaler_crop!r} is not X,Y,WIDTH,HEIGHT in full-sensor pixels") from None
+    if (x, y, w, h) != tuple(scaler_crop) or w < 1 or h < 1:
+        raise PicamcalError(f"{what} {scaler_crop!r} is not X,Y,WIDTH,HEIGHT in whole full-sensor pixels")
+    sensor_w, sensor_h = mode.sensor_size
+    if x < 0 or y < 0 or x + w > sensor_w or y + h > sensor_h:
+        raise PicamcalError(f"{what} {x},{y},{w},{h} lies outside the {sensor_w}x{sensor_h} sensor")
+    if not mode.contains((x, y, w, h)):
+        cx, cy, cw, ch = mode.crop
+        raise PicamcalError(
+            f"{what} {x},{y},{w},{h} lies outside the sensor mode's crop (the {cw}x{ch} area at ({cx}, {cy}) of the "
+            f"{sensor_w}x{sensor_h} sensor): a stream shows only what its mode reads"
+        )
+    return x, y, w, h
+
+
+def default_scaler_crop(mode: SensorMode, size: tuple[int, int]) -> Box:
+    """The ScalerCrop libcamera gives a stream of ``size`` from ``mode`` until one is set: the largest area of the
+    stream's aspect ratio centred in the mode's image, in full-sensor pixels.
+
+    The Raspberry Pi pipeline's ``platformConfigure`` (``src/libcamera/pipeline/rpi/vc4/vc4.cpp``,
+    ``pisp/pisp.cpp``): ``Size::boundedToAspectRatio`` of the mode's output size, ``centeredTo`` its centre, and
+    ``scaleIspCrop`` to the sensor's pixels, in libcamera's integer arithmetic.
+
+    Examples
+    --------
+    >>> binned = SensorMode.full(3280, 2464, binning=2)
+    >>> default_scaler_crop(binned, (1640, 1232)), default_scaler_crop(binned, (1920, 1080))  # 4:3 and 16:9
+    ((0, 0, 3280, 2464), (0, 310, 3280, 1844))
+    """
+    width, height = size
+    out_w, out_h = mode.width, mode.height
+    wide, tall = out_w * height, width * out_h
+    w, h = (tall // height, out_h) if wide > tall else (out_w, wide // width)
+    x, y = out_w // 2 - w // 2, out_h // 2 - h // 2
+    cx, cy, cw, ch = mode.crop
+    return x * cw // out_w + cx, y * ch // out_h + cy, w * cw // out_w, h * ch // out_h
+
+
+def stream_positions(mode: SensorMode, size: tuple[int, int], scaler_crop: Box | None = None) -> tuple[np.ndarray, ...]:
+    """Where each row and column of a processed stream lies in its sensor mode's image (pixel centres at integers).
+
+    The ISP crops the mode's image to the ScalerCrop (libcamera's ``ispCrop``: the ScalerCrop translated to the mode's
+    crop and scaled by the mode's output size over the crop's, ``applyScalerCrop``) and scales that to the stream's
+    size, so stream pixel ``i`` (spanning ``[i, i + 1)``) is centred at ``x0 + (i + 0.5) w / W - 0.5`` of the mode's
+    image. Mode flips mirror the mode's image inside its crop, not this map (libcamera takes the ScalerCrop as it is).
+
+    Returns
+    -------
+    rows, columns : ndarray of float64
+
+    Examples
+    --------
+    >>> rows, cols = stream_positions(SensorMode.full(3280, 2464, binning=2), (410, 308), (820, 616, 1640, 1232))
+    >>> float(cols[0]), float(cols[-1])  # a 2x zoom, scaled by half: every other column of the mode's centre half
+    (410.5, 1228.5)
+    """
+    x, y, w, h = mode.crop if scaler_crop is None else check_scaler_crop(mode, scaler_crop)
+    cx, cy, cw, ch = mode.crop
+    sx, sy = mode.width / cw, mode.height / ch  # the mode's pixels per sensor pixel (1 / binning)
+    width, height = size
+    cols = (x - cx) * sx + (np.arange(width) + 0.5) * w * sx / width - 0.5
+    rows = (y - cy) * sy + (np.arange(height) + 0.5) * h * sy / height - 0.5
+    return rows, cols

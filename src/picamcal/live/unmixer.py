@@ -14,8 +14,8 @@ import numpy as np
 from ..calibration import Calibration
 from ..correct import correct_processed
 from ..errors import PicamcalError, PicamcalWarning
-from ..export.isp import default_scaler_crop, processed_geometry, processed_inputs
-from ..geometry import Box, SensorMode
+from ..export.isp import processed_geometry, processed_inputs
+from ..geometry import Box, SensorMode, default_scaler_crop
 from ..modes import Mode
 from .camera import _settled_metadata, _stream_scaler_crop, _tuning_in_force, camera_sensor_mode
 from .stream import (
@@ -68,7 +68,7 @@ def unmixing_field(
     crop : (x, y, width, height), optional
         The sensor area the stream shows, in full-sensor pixels (picamera2's ``ScalerCrop`` metadata). Default:
         libcamera's default for a stream of this size from ``sensor_mode`` if one is given
-        (:func:`~picamcal.export.isp.default_scaler_crop`), else the calibration's whole area.
+        (:func:`~picamcal.geometry.default_scaler_crop`), else the calibration's whole area.
     sensor_mode : SensorMode, optional
         The camera's sensor mode (:func:`camera_sensor_mode`): its lens shading tables are computed for it and the
         stream is mapped through it onto the calibration's sensor area. Default: the calibration's own mode.

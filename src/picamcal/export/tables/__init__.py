@@ -196,6 +196,8 @@ def _looks_like_tuning(path: Path) -> bool:
     """A JSON or YAML file by its name or first character: a tuning file, or a broken one."""
     if path.suffix.lower() in (".json", ".yaml", ".yml"):
         return True
+    if not path.is_file():  # a FIFO would block the read; what is not a regular file is refused as a calibration
+        return False
     try:
         with open(path, "rb") as f:
             return f.read(64).lstrip()[:1] == b"{"
