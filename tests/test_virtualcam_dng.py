@@ -84,6 +84,7 @@ try:
     picam2.capture_file("missing/white.dng", name="raw")
 except OSError as exc:
     print("failed:", type(exc).__name__)
+time.sleep(7)  # the camera, every request held, warns once that no frame can come
 picam2.stop()
 picam2.start()
 print("after a restart:", picam2.capture_array("raw").shape)
@@ -156,6 +157,9 @@ def test_a_capture_after_a_failing_capture_job_completes(tmp_path, platform):
     assert len(lines) == 4 and lines[0] == lines[2] == "failed: FileNotFoundError", result.stdout
     assert lines[1].startswith("captured again: (480, ") and lines[3].startswith("after a restart: (480, ")
     assert read_raw(tmp_path / "white.dng").sensor == "imx477"
+    # While the one buffer was held, the virtual camera said why no frame came, once; with two it never starved.
+    starved = [line for line in result.stderr.splitlines() if "no request queued" in line]
+    assert len(starved) == 1 and "failed picamera2 capture job" in starved[0], result.stderr
 
 
 # -- the DNGs of both picamera2 generations, written by the installed PiDNG as picamera2 calls it -----------------

@@ -63,6 +63,8 @@ from .values import Orientation, Point, Rectangle, Size, orientation_bits
 
 #: What ``CameraManager.version`` says.
 VERSION = "v0.7.1+picamcal-virtual"
+#: Seconds a started camera goes without a request of its own before it warns that the application holds them all.
+STARVED_S = 5.0
 # Where each platform's device tree puts the camera's I2C bus (the camera ids of Raspberry Pi OS).
 _CAMERA_PATHS = {"vc4": "/base/soc/i2c0mux/i2c@1", "pisp": "/base/axi/pcie@120000/rp1/i2c@88000"}
 _I2C_ADDRESSES = {"imx477": "1a", "imx219": "10", "imx708": "1a", "ov5647": "36", "imx296": "1a", "imx500": "1a"}
@@ -467,8 +469,13 @@ class CameraData:
     # frame is processed while the next is read out, so a frame that takes a little longer to process does not cost
     # the next one; requests bound how far the ISP may fall behind.
     def _run(self) -> None:
-        """The sensor's frame clock: each frame goes to the oldest queued request, or is dropped."""
+        """The sensor's frame clock: each frame goes to the oldest queued request, or is dropped.
+
+        A camera left with no request of its own (none queued, none being filled or processed: the application holds
+        them all) delivers nothing, as on a Pi; after :data:`STARVED_S` of that, one warning says why, once a stall.
+        """
         next_frame = time.monotonic_ns()
+        starved_since: int | None = None
         while True:
             settings = self.ipa.settings_for(self.sequence)
             frame_us = self.ipa.exposure_of(settings)[2]
@@ -484,6 +491,9 @@ class CameraData:
                 request = self.queue_.pop(0) if self.queue_ else None
                 if request is not None:
                     self.in_flight.append(request)
+                    starved_since = None
+                elif not self.in_flight and not self.developing:
+                    starved_since = self._starved(starved_since, next_frame)
             if request is not None:
                 try:
                     self._receive(request, settings, next_frame)
@@ -511,6 +521,23 @@ class CameraData:
                 self._develop(frame)
             except Exception as exc:  # as in _run
                 self._fail_request(frame.request, frame.sequence, exc)
+
+    @staticmethod
+    def _starved(since: int | None, now: int) -> int | None:
+        """When the camera's stall without requests began (``now`` if it begins now); warns once, after STARVED_S."""
+        if since is None:
+            return now
+        if since >= 0 and now - since >= STARVED_S * 1e9:  # -1: warned already
+            log(
+                "WARN",
+                "VirtualCamera",
+                "camera.py",
+                f"no request queued for {STARVED_S:g} s: the application holds every request of the camera (one not "
+                "released, as after a failed picamera2 capture job, keeps its buffers); no frame comes until a "
+                "request is queued again, or the camera is stopped and started, as on a Raspberry Pi",
+            )
+            return -1  # warned: not again until a request comes
+        return since
 
     def _fail_request(self, request: Request, sequence: int, exc: Exception) -> None:
         """Complete a request whose frame could not be made, as a frame in error."""
