@@ -158,18 +158,22 @@ _JSON_KINDS = {
 _MAX_JSON_BYTES = 16 << 20
 
 
-def _calibration(path: Path) -> Any:
-    """The calibration at ``path`` (read once, as long as the file is unchanged, for what :func:`what_else` and
-    :func:`survey` say of it), or None."""
+def _read_once(path: Path, reader: Any) -> Any:
+    """``reader(path)`` read once as long as the file is unchanged (for what :func:`what_else` and :func:`survey`
+    say of it), or None if it cannot be looked at."""
     try:
         stat = path.stat()
     except OSError:
         return None
-    return _load_calibration(str(path), stat.st_mtime_ns, stat.st_size)
+    return _read_cached(reader, str(path), stat.st_mtime_ns, stat.st_size)
 
 
-@functools.lru_cache(maxsize=4)
-def _load_calibration(path: str, mtime_ns: int, size: int) -> Any:
+@functools.lru_cache(maxsize=8)
+def _read_cached(reader: Any, path: str, mtime_ns: int, size: int) -> Any:
+    return reader(path)
+
+
+def _load_or_none(path: str) -> Any:
     from .calibration import load_calibration
 
     try:
@@ -178,20 +182,16 @@ def _load_calibration(path: str, mtime_ns: int, size: int) -> Any:
         return None
 
 
+def _calibration(path: Path) -> Any:
+    """The calibration at ``path``, or None."""
+    return _read_once(path, _load_or_none)
+
+
 def _shading_table(path: Path) -> dict[str, Any] | None:
-    """:func:`picamcal.export.tables.inspect_table` of the file, read once as long as it is unchanged."""
-    try:
-        stat = path.stat()
-    except OSError:
-        return None
-    return _inspect_table(str(path), stat.st_mtime_ns, stat.st_size)
-
-
-@functools.lru_cache(maxsize=4)
-def _inspect_table(path: str, mtime_ns: int, size: int) -> dict[str, Any] | None:
+    """:func:`picamcal.export.tables.inspect_table` of the file."""
     from .export.tables import inspect_table
 
-    return inspect_table(path)
+    return _read_once(path, inspect_table)
 
 
 def what_else(path: Path) -> str | None:
