@@ -9,6 +9,9 @@ Each example runs in its own empty temporary folder (so it may write ``cal.npz``
 The whole session (the tests under ``tests/`` too, and the processes they start) keeps its compiled C kernel
 (:mod:`picamcal.ckernel`) in a temporary folder of its own, so that no test writes into the user's home: one
 compile per session. It is set here, in the root, so that a run of the doctests alone has it as well.
+
+The whole suite runs on ``python3 -m pytest -n auto`` (pytest-xdist, a test module to a worker): ``auto`` is one
+worker more than the cores, and the longest modules start first (``LONGEST_FIRST``).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -32,16 +36,49 @@ SLOW_EXAMPLES = {
 }
 
 
+#: The test modules that take longest, longest first, with their seconds on one worker of a 2-core machine
+#: (``python3 -m pytest -n auto --durations=0``, summed by module): they start first, so that the run does not end
+#: with one worker alone on a long module while the others have finished. Refresh it when a module grows.
+LONGEST_FIRST = (
+    "test_docs_site.py",  # 264 s
+    "test_table_import.py",  # 172 s
+    "test_sensor_modes_matrix.py",  # 156 s
+    "test_bad_input_corpus.py",  # 145 s
+    "test_processed_modes.py",  # 139 s
+    "test_docs.py",  # 126 s
+    "test_virtualcam_pi_path.py",  # 118 s
+    "test_verify_modes.py",  # 103 s
+    "test_kill.py",  # 91 s
+    "test_imports.py",  # 82 s
+    "test_export.py",  # 78 s
+    "test_virtualcam_picamera2.py",  # 69 s
+    "test_output.py",  # 53 s
+    "test_kernels.py",  # 51 s
+    "test_live_modes.py",  # 48 s
+    "test_report.py",  # 48 s
+)
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    if hasattr(config, "workerinput") and os.environ.get("PICAMCAL_CACHE_DIR"):
+        return  # an xdist worker: the folder of the run that started it, one compile for the whole run
     folder = tempfile.mkdtemp(prefix="picamcal-test-cache-")
     os.environ["PICAMCAL_CACHE_DIR"] = folder
     config.add_cleanup(lambda: shutil.rmtree(folder, ignore_errors=True))
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: one worker more than the cores (at most 4), as the suite's tests often wait (the virtual
+    camera's frame clock, the processes they start) and a core left idle then would lengthen the run."""
+    return min(len(os.sched_getaffinity(0)) + 1, 4)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if isinstance(item, DoctestItem) and item.name in SLOW_EXAMPLES:
             item.add_marker(pytest.mark.slow)
+    rank = {name: number for number, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(Path(str(item.path)).name, len(rank)))  # stable: the rest keep their order
 
 
 @pytest.fixture(autouse=True)
