@@ -7,16 +7,23 @@ file or the option; no traceback; nothing written under the output's name (the c
 byte, but for a batch's good outputs); every input unchanged, byte for byte.
 
 The bad files are made here, by code, from one small real run (a simulated 96 x 64 IMX219 without noise, its
-calibration and tuning file). Every case is a subprocess; they all run in one module fixture, two at a time (the
-machine has two cores), and the parametrised tests only check what each gave.
+calibration and tuning file). Every case is a process of its own, as a command typed at a shell; they all run in one
+module fixture, two at a time (the machine has two cores), and the parametrised tests only check what each gave.
+Each case's process is forked from a process that has imported the command line and the libraries the commands
+use (:data:`PRELOAD`), so that the corpus does not spend most of its time starting Python and importing numpy 250
+times: the case then runs ``picamcal.cli.main`` in its own folder and environment, its standard input
+``/dev/null``, its output and errors into files, and ends as a Python process ends (``atexit`` handlers, streams
+flushed, exit status).
 """
 
 from __future__ import annotations
 
 import hashlib
 import io
+import itertools
 import json
 import os
+import queue
 import shutil
 import stat
 import struct
@@ -38,7 +45,8 @@ from PIL import Image
 #: A case that runs longer than this is taken to hang: every case reads files of a few kilobytes and ends in a few
 #: seconds, so this is a guard against waiting for ever (a FIFO read), not a measure of speed.
 TIMEOUT_S = 120
-CLI = [sys.executable, "-c", "from picamcal.cli import main; main()"]
+#: What the forking process imports before the first case: the command line and what most commands load.
+PRELOAD = ("picamcal.cli", "numpy", "picamcal.raw", "picamcal.calibration", "picamcal.correct", "tifffile", "rawpy")
 # Over 200 commands of a second or two each, and the small run they share: the fast loop leaves the corpus out.
 pytestmark = pytest.mark.slow
 
@@ -1161,18 +1169,94 @@ class Outcome:
     inputs_after: dict
 
 
-def run_case(one: Case, folder: Path, argv: list[str], shared: Path) -> Outcome:
+# The forking process: it reads one job a line (JSON: argv, cwd, env, the output files), forks a child that runs the
+# command line as ``python3 -c "from picamcal.cli import main; main()" ARGV`` would, and answers with its exit
+# status (null when it ran over the timeout and was killed).
+_FORKER = """
+import atexit, importlib, json, os, signal, sys, time, traceback
+for name in sys.argv[1:]:
+    importlib.import_module(name)
+from picamcal.cli import main
+replies = sys.stdout
+for line in sys.stdin:
+    job = json.loads(line)
+    pid = os.fork()
+    if pid == 0:
+        code = 1
+        try:
+            os.chdir(job["cwd"])
+            os.environ.clear()
+            os.environ.update(job["env"])
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            for fd, opened in ((0, os.open(os.devnull, os.O_RDONLY)),
+                               (1, os.open(job["stdout"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)),
+                               (2, os.open(job["stderr"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644))):
+                os.dup2(opened, fd)
+                os.close(opened)
+            sys.argv = ["-c", *job["argv"]]
+            try:
+                main()
+                code = 0
+            except SystemExit as exc:
+                if exc.code is None or isinstance(exc.code, int):
+                    code = exc.code or 0
+                else:
+                    print(exc.code, file=sys.stderr)
+            except BaseException:
+                traceback.print_exc()
+            atexit._run_exitfuncs()
+        finally:
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except Exception:
+                    pass
+            os._exit(code)
+    deadline = time.monotonic() + job["timeout"]
+    while (done := os.waitpid(pid, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
+        time.sleep(0.005)
+    if done[0] == 0:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        status = None
+    else:
+        status = os.waitstatus_to_exitcode(done[1])
+    replies.write(json.dumps(status) + "\\n")
+    replies.flush()
+"""
+
+
+class Forker:
+    """One forking process (see :data:`_FORKER`); :meth:`run` runs one case in a child of it."""
+
+    def __init__(self) -> None:
+        self.process = subprocess.Popen([sys.executable, "-c", _FORKER, *PRELOAD], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, text=True)  # fmt: skip
+
+    def run(self, argv: list[str], cwd: Path, env: dict[str, str], streams: Path) -> tuple[int | None, str, str]:
+        out, err = streams.with_suffix(".out"), streams.with_suffix(".err")
+        job = {"argv": argv, "cwd": str(cwd), "env": env, "stdout": str(out), "stderr": str(err), "timeout": TIMEOUT_S}
+        assert self.process.stdin is not None and self.process.stdout is not None
+        self.process.stdin.write(json.dumps(job) + "\n")
+        self.process.stdin.flush()
+        status = json.loads(self.process.stdout.readline())
+        return status, out.read_text(errors="replace"), err.read_text(errors="replace")
+
+    def close(self) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.close()
+        self.process.wait(timeout=60)
+
+
+def run_case(forkers: queue.Queue, one: Case, folder: Path, argv: list[str], shared: Path, streams: Path) -> Outcome:
     env = {k: v for k, v in os.environ.items() if k != "PICAMCAL_MAX_PIXELS"} | one.env
     folder_before, inputs_before = snapshot(folder), shared_inputs(argv, shared)
+    forker = forkers.get()
     start = time.monotonic()
     try:
-        result = subprocess.run([*CLI, *argv], cwd=folder, env=env, stdin=subprocess.DEVNULL, capture_output=True,
-                                text=True, timeout=TIMEOUT_S)  # fmt: skip
-        status, stdout, stderr = result.returncode, result.stdout, result.stderr
-    except subprocess.TimeoutExpired as exc:
-        status = None
-        stdout, stderr = (text.decode(errors="replace") if isinstance(text, bytes) else text or ""
-                          for text in (exc.stdout, exc.stderr))  # fmt: skip
+        status, stdout, stderr = forker.run(argv, folder, env, streams)
+    finally:
+        forkers.put(forker)
     seconds = time.monotonic() - start
     return Outcome(argv, status, stdout, stderr, seconds, folder_before, snapshot(folder), inputs_before,
                    shared_inputs(argv, shared))  # fmt: skip
@@ -1193,8 +1277,19 @@ def corpus(tmp_path_factory, request) -> dict:
         argv = [str(part) for part in param.values[0].argv(folder, shared)]
         jobs.append((param.values[0], folder, argv, shared))
     before = snapshot(shared)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        outcomes = list(pool.map(lambda job: run_case(*job), jobs))
+    streams = root / "streams"
+    streams.mkdir()
+    forkers: queue.Queue = queue.Queue()
+    started = [Forker() for _ in range(2)]
+    for forker in started:
+        forkers.put(forker)
+    numbers = itertools.count()
+    try:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            outcomes = list(pool.map(lambda job: run_case(forkers, *job, streams / f"{next(numbers):03d}"), jobs))
+    finally:
+        for forker in started:
+            forker.close()
     return {
         "cases": {param.id: outcome for param, outcome in zip(params, outcomes, strict=True)},
         "shared_before": before,
