@@ -59,8 +59,9 @@ def openflexure_table(calibration) -> np.ndarray:
 
 @pytest.fixture(scope="module", params=[(0.0, 0.0), (3.0, -2.0)], ids=["centred", "tilted"])
 def microscope(request, tmp_path_factory):
-    """Two microscopes' saved tables: a full IMX219 white (the second behind tilted optics), its calibration, and the
-    microscope_settings.npz OpenFlexure would have saved from it."""
+    """Two microscopes' saved tables: a full IMX219 white (the second behind tilted optics), its calibration, the
+    microscope_settings.npz OpenFlexure would have saved from it, and the tunings exported from that calibration
+    itself for each platform (``own``)."""
     folder = tmp_path_factory.mktemp("microscope")
     white = render(make_camera("imx219", tilt=request.param), "white", rng=1)
     white_path = picamcal.write_dng(folder / "white.dng", white)
@@ -68,7 +69,12 @@ def microscope(request, tmp_path_factory):
     calibration.save(folder / "cal.npz")
     table = openflexure_table(calibration)
     np.savez(folder / "microscope_settings.npz", lens_shading_table=table, **OTHER_SETTINGS)
-    return {"folder": folder, "white": white, "white_path": white_path, "calibration": calibration, "table": table}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PicamcalWarning)
+        own = {target: export_tuning(calibration, load_tuning(stock_tuning_path("imx219", target)))
+               for target in ("bcm2835", "pisp")}  # fmt: skip
+    return {"folder": folder, "white": white, "white_path": white_path, "calibration": calibration, "table": table,
+            "own": own}  # fmt: skip
 
 
 # --- what it must show: OpenFlexure's tables on a Pi 4 and a Pi 5 ---------------------------------------------------
@@ -84,11 +90,8 @@ def test_openflexure_tables_become_tunings_that_flatten_their_white_as_well_as_i
         tuning = load_tuning(out / f"imx219_{label}.json")
         assert check_tuning(tuning) == target  # libcamera's rules accept it
         assert tuning["picamcal"]["sensor"] == "imx219" and "colour_gains" not in tuning["picamcal"]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", PicamcalWarning)
-            own = export_tuning(microscope["calibration"], load_tuning(stock_tuning_path("imx219", target)))
         from_table = block_flatness(apply_tuning(microscope["white"], tuning))
-        from_calibration = block_flatness(apply_tuning(microscope["white"], own))
+        from_calibration = block_flatness(apply_tuning(microscope["white"], microscope["own"][target]))
         # The grid's own limit: the table's tuning within 1.2 times the block CV of a tuning from the white itself
         # (measured 0.93 to 1.11: the u3.5 steps, dequantised, and the table's 64-pixel cells cost that much).
         for key, cv in from_table.items():
@@ -98,9 +101,7 @@ def test_openflexure_tables_become_tunings_that_flatten_their_white_as_well_as_i
 @pytest.mark.slow
 def test_a_pi_4_tuning_converted_to_the_pi_5_and_back_is_within_half_a_percent_in_every_cell(microscope, tmp_path):
     vc4 = tmp_path / "imx219_vc4.json"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", PicamcalWarning)
-        tuning = export_tuning(microscope["calibration"], load_tuning(stock_tuning_path("imx219", "bcm2835")))
+    tuning = microscope["own"]["bcm2835"]
     vc4.write_text(json.dumps(tuning))
     pisp, back = tmp_path / "pisp" / "imx219_pisp.json", tmp_path / "back" / "imx219_vc4.json"
     for source, target, out in ((vc4, "pisp", pisp), (pisp, "vc4", back)):
@@ -116,10 +117,7 @@ def test_a_pi_4_tuning_converted_to_the_pi_5_and_back_is_within_half_a_percent_i
 
 @pytest.mark.slow
 def test_export_lst_of_a_pi_5_tuning_gives_the_legacy_table_of_its_flat_field(microscope, tmp_path):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", PicamcalWarning)
-        tuning = export_tuning(microscope["calibration"], load_tuning(stock_tuning_path("imx219", "pisp")))
-    (tmp_path / "imx219_pisp.json").write_text(json.dumps(tuning))
+    (tmp_path / "imx219_pisp.json").write_text(json.dumps(microscope["own"]["pisp"]))
     result = run("export-lst", str(tmp_path / "imx219_pisp.json"), "--out", str(tmp_path / "lst.npy"))
     assert result.returncode == 0, result.stderr
     table = np.load(tmp_path / "lst.npy")
