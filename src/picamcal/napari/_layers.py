@@ -36,6 +36,7 @@ __all__ = [
     "NOISE_COLORMAP",
     "LayerData",
     "calibration_layers",
+    "check_stack_frame",
     "image_layer",
     "linear_rgb",
     "pixel_size_um",
@@ -211,14 +212,18 @@ def pixel_size_um(sensor: str | None, geometry: SensorMode | None) -> float | No
     return entry.pixel_pitch_um * (geometry.binning if geometry is not None else 1)
 
 
-def raw_metadata(raw: RawImage, warnings: Sequence[str] = ()) -> dict[str, Any]:
+def raw_metadata(
+    raw: RawImage, warnings: Sequence[str] = (), read_options: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """The record a raw frame's layers carry under ``metadata["picamcal"]``: where it came from and what it is.
 
     ``path``, ``sensor``, ``pattern``, ``black_level``, ``white_level``, ``bit_depth``, the exposure and gains the
     file gives (``exposure_time_s``, ``analogue_gain``, ``iso``, ...), ``white_balance`` (its gains and source),
     ``warnings`` (the text of each warning read_raw gave), ``geometry`` (its sensor mode's record, or None where the
-    file's geometry does not hold) and ``sensor_mode`` (in words), ``pixel_size_um``; and ``raw``, the RawImage
-    itself (its mosaic is the raw layer's data, not a copy). Everything but ``raw`` is JSON-serialisable.
+    file's geometry does not hold) and ``sensor_mode`` (in words), ``pixel_size_um``, ``read_options`` (the keyword
+    arguments of :func:`picamcal.read_raw` it was read with, those a headless dump needs: read it again with them);
+    and ``raw``, the RawImage itself (its mosaic is the raw layer's data, not a copy). Everything but ``raw`` is
+    JSON-serialisable.
 
     Examples
     --------
@@ -245,6 +250,7 @@ def raw_metadata(raw: RawImage, warnings: Sequence[str] = ()) -> dict[str, Any]:
         "geometry": None if geometry is None else geometry.to_record(),
         "sensor_mode": None if geometry is None else geometry.describe(),
         "pixel_size_um": pixel_size_um(raw.sensor, geometry),
+        "read_options": _plain(dict(read_options or {})),
         "raw": raw,
     }
     return record
@@ -338,7 +344,9 @@ def _mosaic_layer(bayer: np.ndarray, name: str, record: Mapping[str, Any]) -> La
     return (bayer, kwargs, "image")
 
 
-def raw_layers(raw: RawImage, name: str, *, warnings: Sequence[str] = ()) -> list[LayerData]:
+def raw_layers(
+    raw: RawImage, name: str, *, warnings: Sequence[str] = (), read_options: Mapping[str, Any] | None = None
+) -> list[LayerData]:
     """The two layers of a raw frame: its linear RGB (:func:`linear_rgb`), then its mosaic (hidden).
 
     Both carry :func:`raw_metadata` under ``metadata["picamcal"]`` (``kind`` ``"linear rgb"`` or ``"raw mosaic"``)
@@ -352,6 +360,8 @@ def raw_layers(raw: RawImage, name: str, *, warnings: Sequence[str] = ()) -> lis
         The RGB layer's name (the file's stem, as napari names layers).
     warnings : sequence of str
         The text of the warnings reading it gave, kept in the record.
+    read_options : mapping, optional
+        The keyword arguments of :func:`picamcal.read_raw` it was read with, kept in the record.
 
     Raises
     ------
@@ -370,14 +380,20 @@ def raw_layers(raw: RawImage, name: str, *, warnings: Sequence[str] = ()) -> lis
     ('imx219', 'BGGR', 'linear rgb', ('micrometer', 'micrometer'))
     """
     rgb = linear_rgb(raw)
-    record = raw_metadata(raw, warnings)
+    record = raw_metadata(raw, warnings, read_options)
     return [
         image_layer(rgb, name, dict(record, kind="linear rgb"), pixel_size=record["pixel_size_um"]),
         _mosaic_layer(raw.bayer, name, record),
     ]
 
 
-def stack_layers(raws: Sequence[RawImage], name: str, *, warnings: Sequence[str] = ()) -> list[LayerData]:
+def stack_layers(
+    raws: Sequence[RawImage],
+    name: str,
+    *,
+    warnings: Sequence[str] = (),
+    read_options: Mapping[str, Any] | None = None,
+) -> list[LayerData]:
     """A stack of same-sized raw frames as two layers: their linear RGB (N, H, W, 3) and their mosaics (N, H, W).
 
     The record is the first frame's (:func:`raw_metadata`) with ``paths``, every frame's file, and ``frames``, the
@@ -398,20 +414,15 @@ def stack_layers(raws: Sequence[RawImage], name: str, *, warnings: Sequence[str]
     """
     if not raws:
         raise PicamcalError("no raw frames to stack")
-    first = raws[0]
     for raw in raws[1:]:
-        if raw.bayer.shape != first.bayer.shape:
-            raise PicamcalError(
-                f"is {raw.width}x{raw.height}, the frames before it {first.width}x{first.height}: a stack needs "
-                "frames of one size",
-                raw.source,
-            )
+        check_stack_frame(raw, raws[0])
+    first = raws[0]
     rgb = np.empty((len(raws), first.height, first.width, 3), dtype=np.float32)
     for k, raw in enumerate(raws):
         linear_rgb(raw, out=rgb[k])
     mosaics = np.stack([raw.bayer for raw in raws])
     records = [raw_metadata(raw) for raw in raws]
-    record = dict(raw_metadata(first, warnings))
+    record = dict(raw_metadata(first, warnings, read_options))
     record.update(
         paths=[r["path"] for r in records],
         frames=[{k: v for k, v in r.items() if k != "raw"} for r in records],
@@ -421,6 +432,24 @@ def stack_layers(raws: Sequence[RawImage], name: str, *, warnings: Sequence[str]
         image_layer(rgb, name, dict(record, kind="linear rgb"), pixel_size=record["pixel_size_um"]),
         _mosaic_layer(mosaics, name, record),
     ]
+
+
+def check_stack_frame(raw: RawImage, first: RawImage) -> None:
+    """Raise unless ``raw`` is of the size of ``first``, the first frame of its stack, with the line a batch's zarr
+    stack gives a frame of another size (:func:`picamcal.output.ome_zarr.write_frame`).
+
+    Examples
+    --------
+    >>> first = RawImage(np.zeros((4, 6), np.uint16), "BGGR", 64, 1023, 10, None, {"path": "a.dng"})
+    >>> check_stack_frame(RawImage(np.zeros((4, 8), np.uint16), "BGGR", 64, 1023, 10, None, {"path": "b.dng"}), first)
+    Traceback (most recent call last):
+    ...
+    picamcal.errors.PicamcalError: b.dng: is 8x4, the stack's frames are 6x4
+    """
+    if raw.bayer.shape != first.bayer.shape:
+        raise PicamcalError(
+            f"is {raw.width}x{raw.height}, the stack's frames are {first.width}x{first.height}", raw.source
+        )
 
 
 # Calibrations ---------------------------------------------------------------------------------------------------
