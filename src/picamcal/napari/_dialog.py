@@ -114,17 +114,21 @@ def parse_answers(answers: Mapping[str, str | None], need: str = HEADLESS) -> di
 
     Raises
     ------
-    click.BadParameter
+    typer.BadParameter
         An answer the command line refuses; ``format_message()`` is the line it prints (``Invalid value for ...``).
 
     Examples
     --------
     >>> parse_answers({"raw_format": "SBGGR10_CSI2P", "size": "640x480", "stride": "", "black_level": "64"})
     {'black_level': [64.0], 'raw_format': 'SBGGR10_CSI2P', 'size': (640, 480)}
-    >>> parse_answers({"raw_format": "SBGGR10_CSI2P", "size": "640x48"})
-    Traceback (most recent call last):
-    ...
-    click.exceptions.BadParameter: '640x48': width and height must be even and at least 16
+    >>> for typed in ({"size": "640x47"}, {"stride": "0"}, {"sensor": "imx21"}):
+    ...     try:
+    ...         parse_answers({"raw_format": "SBGGR10_CSI2P", **typed})
+    ...     except Exception as exc:
+    ...         print(exc.format_message())
+    Invalid value for --size: '640x47': width and height must be even and at least 16
+    Invalid value for '--stride': 0 is outside the accepted range, 1 or more
+    Invalid value for --sensor: unknown sensor 'imx21'; did you mean imx219?
     >>> parse_answers({"black_level": "64"}, BLACK_LEVEL)
     {'black_level': [64.0]}
     """
@@ -152,15 +156,18 @@ def parse_answers(answers: Mapping[str, str | None], need: str = HEADLESS) -> di
 
 
 def _whole_number(text: str | None, option: str, check: Callable[[Any], Any]) -> int | None:
-    """``text`` as the command line's integer option ``option`` takes it, checked by its callback ``check``."""
-    import click
+    """``text`` as the command line's integer option ``option`` takes it (click's message for what is not an integer),
+    checked by its callback ``check``."""
+    import typer
 
     if text is None:
         return None
     try:
-        return int(check(click.INT.convert(text, None, None)))
-    except click.BadParameter as exc:
-        raise click.BadParameter(exc.message, param_hint=f"'{option}'") from None
+        return int(check(int(text)))
+    except ValueError:
+        raise typer.BadParameter(f"{text!r} is not a valid integer.", param_hint=f"'{option}'") from None
+    except typer.BadParameter as exc:
+        raise typer.BadParameter(exc.message, param_hint=f"'{option}'") from None
 
 
 def _sensor_names() -> list[str]:
@@ -211,7 +218,9 @@ class ReadOptionsDialog:
                 box.setEditable(True)
                 box.addItems(["", *(RAW_FORMATS if key == "raw_format" else _sensor_names())])
                 box.setCurrentText(default)
-                box.lineEdit().setPlaceholderText(PLACEHOLDERS[key])
+                line = box.lineEdit()
+                if line is not None:
+                    line.setPlaceholderText(PLACEHOLDERS[key])
                 widget: Any = box
             else:
                 widget = QLineEdit(default)
@@ -225,7 +234,7 @@ class ReadOptionsDialog:
         self.error.setStyleSheet("color: #e05050")
         layout.addWidget(self.error)
         buttons = QDialogButtonBox(QDialogButtonBox.Ok | QDialogButtonBox.Cancel)
-        buttons.accepted.connect(self.submit)
+        buttons.accepted.connect(self._ok)
         buttons.rejected.connect(self.dialog.reject)
         layout.addWidget(buttons)
         self.buttons = buttons
@@ -237,14 +246,17 @@ class ReadOptionsDialog:
             for key, widget in self.fields.items()
         }
 
+    def _ok(self) -> None:
+        self.submit()
+
     def submit(self) -> bool:
         """Check the answers: accepted, the dialog closes with :attr:`options` set; refused, it stays open, the
         command line's message in :attr:`error`. Returns whether they were accepted."""
-        import click
+        import typer
 
         try:
             self.options = parse_answers(self.answers(), self.request.need)
-        except click.BadParameter as exc:
+        except typer.BadParameter as exc:
             self.error.setText(exc.format_message())
             return False
         self.error.setText("")
@@ -266,7 +278,12 @@ def ask_read_options(request: Request) -> dict[str, Any] | None:
 
     Examples
     --------
-    >>> ask_read_options(Request(Path("frame.raw"), HEADLESS, "a headless dump"))  # no napari here: nothing asked
+    What a test puts in its place, answering at once what a user would type:
+
+    >>> def answer(request: Request) -> dict[str, Any] | None:
+    ...     return parse_answers({"raw_format": "SBGGR10_CSI2P", "size": "320x240"}, request.need)
+    >>> answer(Request(Path("frame.raw"), HEADLESS, "a headless dump"))
+    {'raw_format': 'SBGGR10_CSI2P', 'size': (320, 240)}
     """
     try:
         from qtpy.QtWidgets import QApplication

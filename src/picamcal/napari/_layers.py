@@ -555,7 +555,7 @@ def calibration_layers(calibration: Calibration, name: str) -> list[LayerData]:
     >>> cal = picamcal.calibrate(**simulate_references(make_camera("imx219", size=(320, 240)), seed=1))
     >>> layers = calibration_layers(cal, "cal")
     >>> [kwargs["name"] for _, kwargs, _ in layers][::4]
-    ['cal flat-field gain R', 'cal unmixing U[R,G]', 'cal unmixing U[B,R]', 'cal noise penalty']
+    ['cal flat-field gain R', 'cal unmixing U[R,G]', 'cal unmixing U[G,B]', 'cal noise penalty']
     >>> data, kwargs, kind = layers[-1]
     >>> data.shape, kwargs["colormap"], kwargs["contrast_limits"][0], kwargs["visible"], kwargs["scale"]
     ((15, 20), 'inferno', 1.0, True, (17.92, 17.92))

@@ -277,7 +277,7 @@ def _ask_headless(path: Path) -> dict[str, Any]:
 
 def _read_raw(path: Path, options: dict[str, Any], said: list[str]) -> Any:
     """read_raw with ``options``; a frame whose black level nothing gives asks for it (updating ``options``, so the
-    frames after it in a stack take the same). Its warnings are collected by :func:`_shown_warnings`."""
+    frames after it in a stack take the same). Its warnings are added to ``said`` (:func:`_collecting`)."""
     from ..raw import read_raw
     from ..raw.model import require_black_level
 
@@ -301,12 +301,13 @@ def _read_raw(path: Path, options: dict[str, Any], said: list[str]) -> Any:
 
 
 def _suggested_black_level(raw: Any, said: list[str]) -> tuple[str, str] | None:
-    """The level a DNG without a BlackLevel tag is warned to take (``pass --black-level N``), and the warning."""
+    """The level a DNG without a BlackLevel tag is warned to take (``pass --black-level N``), and the warning (less
+    the file's name, which the dialog gives)."""
     import re
 
     for text in said:
-        if str(raw.source) in text and (found := re.search(r"--black-level (\S+)$", text)):
-            return found[1], text
+        if text.startswith(f"{raw.source}: ") and (found := re.search(r"--black-level (\S+)$", text)):
+            return found[1], text.removeprefix(f"{raw.source}: ")
     return None
 
 
@@ -327,7 +328,7 @@ def _read_stack(paths: list[Path], name: str, said: list[str]) -> list[tuple[Any
     if not paths:
         raise PicamcalError("no raw frames to open as a stack")
     options: dict[str, Any] = {}
-    raws = []
+    raws: list[Any] = []
     for path in paths:
         raw = _read_raw(path, options, said)
         if raws:

@@ -140,7 +140,7 @@ def write_tiff(path: str, data: Any, meta: dict[str, Any]) -> list[str]:
     target = Path(path)
     try:
         rgb = _linear_rgb(target, data, meta, stacks=False)
-        check_output(target, True, is_picamcal_output, "an image picamcal wrote", _sources(meta))
+        check_output(target, True, is_picamcal_output, "an image picamcal wrote", [Path(s) for s in _sources(meta)])
         write_corrected(target, rgb, TIFF_FORMAT, provenance(meta), overwrite=True)
     except PicamcalError as exc:
         return _refused(exc)
