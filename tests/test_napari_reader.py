@@ -419,6 +419,7 @@ def tiff_record(path: Path) -> dict:
         return json.loads(tif.pages.first.description)["picamcal"]
 
 
+@pytest.mark.slow  # the command line's outputs to compare with: two runs of picamcal correct
 def test_the_tiff_writer_writes_what_the_command_line_writes(corrected, tmp_path):
     out, rgb, meta = corrected
     assert _writer.write_tiff(str(tmp_path / "t.tif"), rgb, meta) == [str(tmp_path / "t.tif")]
@@ -432,6 +433,7 @@ def test_the_tiff_writer_writes_what_the_command_line_writes(corrected, tmp_path
     assert _writer.write_tiff(str(tmp_path / "t.tif"), rgb * 0.5, meta) == [str(tmp_path / "t.tif")]
 
 
+@pytest.mark.slow  # the command line's outputs to compare with: two runs of picamcal correct
 def test_the_zarr_writer_writes_what_the_command_line_writes(corrected, tmp_path):
     import zarr
 
