@@ -563,36 +563,40 @@ def test_npe2_finds_the_manifest_and_it_validates(files):
 
 
 @pytest.fixture(scope="module")
-def display():
-    """An X display for Qt. A QApplication that exists already has one; else this module starts Xvfb (Mesa gives
-    napari's canvas OpenGL) and keeps it until the process ends, as a QApplication made on it outlives the module."""
+def display(tmp_path_factory):
+    """This process's QApplication, on an X display. One that exists already has its display (another module's);
+    else this module starts Xvfb (Mesa gives napari's canvas OpenGL) and opens napari's QApplication on it. The
+    QApplication lives as long as the process, and so does the display: Xvfb runs with ``-terminate``, ending when
+    its last client goes as the process exits. The environment is put back once the QApplication exists; napari's
+    settings go to a file of the session, not the user's."""
     from qtpy.QtWidgets import QApplication
 
-    if QApplication.instance() is None:
-        if shutil.which("Xvfb") is None:
-            pytest.skip("Xvfb is not installed (Debian package xvfb)")
-        read, write = os.pipe()
-        server = subprocess.Popen(
-            ["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
-            pass_fds=(write,),
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        os.close(write)
-        with os.fdopen(read) as announced:
-            number = announced.readline().strip()
-        if not number:
-            pytest.fail(f"Xvfb did not start (exit status {server.wait()})")
-        os.environ["DISPLAY"] = f":{number}"
-        os.environ["QT_QPA_PLATFORM"] = "xcb"
-        import atexit
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("NAPARI_CONFIG", str(tmp_path_factory.mktemp("napari") / "settings.yaml"))
+        if QApplication.instance() is None:
+            if shutil.which("Xvfb") is None:
+                pytest.skip("Xvfb is not installed (Debian package xvfb)")
+            read, write = os.pipe()
+            server = subprocess.Popen(
+                ["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp", "-terminate"],
+                pass_fds=(write,),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                start_new_session=True,  # not in the test's process group: a test's signal does not reach it
+            )
+            os.close(write)
+            with os.fdopen(read) as announced:
+                number = announced.readline().strip()  # written once the server accepts connections
+            if not number:
+                server.kill()
+                pytest.fail(f"Xvfb did not start (exit status {server.wait()})")
+            with pytest.MonkeyPatch.context() as environment:
+                environment.setenv("DISPLAY", f":{number}")
+                environment.setenv("QT_QPA_PLATFORM", "xcb")
+                from napari.qt import get_qapp
 
-        atexit.register(server.terminate)
-        _keep.append(QApplication([]))
-    return QApplication.instance()
-
-
-_keep: list = []
+                get_qapp()  # napari's: with the attributes its OpenGL canvas needs, set before it exists
+        yield QApplication.instance()
 
 
 @pytest.mark.slow
