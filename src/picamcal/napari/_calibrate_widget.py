@@ -15,6 +15,7 @@ from collections.abc import Generator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from magicgui.types import FileDialogMode
 from magicgui.widgets import (
     CheckBox,
     ComboBox,
@@ -168,9 +169,9 @@ class CalibrateWidget(Container):
         self._sources: dict[str, list[Source]] = {}
         self._folder: Path | None = None
         self._extras: dict[str, list[Source]] = {}
-        self._inputs: list[Path] = []
+        self._inputs: list[Path] = []  # the files read, which no output may replace
         self._maps: list[Any] = []
-        self.folder = FileEdit(label="references folder", mode="d", nullable=True)
+        self.folder = FileEdit(label="references folder", mode=FileDialogMode.EXISTING_DIRECTORY, nullable=True)
         self.roles = {role: ComboBox(label=role, choices=self._choices, nullable=True) for role in ROLES}
         self.bin_size = SpinBox(label="bin size (px)", value=16, min=2, max=1024, step=2)
         self.smoothing = FloatSpinBox(label="smoothing (bins)", value=0.0, min=0.0, max=1000.0, step=0.5)
@@ -179,10 +180,10 @@ class CalibrateWidget(Container):
         self.progress = ProgressBar(value=0, min=0, max=1, label="progress")
         self.status = Label(value="")
         self.checks_table = read_only_table(CHECK_COLUMNS)
-        self.out_file = FileEdit(label="save as", mode="w", filter="*.npz", nullable=True)
+        self.out_file = FileEdit(label="save as", mode=FileDialogMode.OPTIONAL_FILE, filter="*.npz", nullable=True)
         self.overwrite = CheckBox(text="Replace existing files (--overwrite)")
         self.save_button = PushButton(text="Save the calibration")
-        self.tuning_folder = FileEdit(label="tuning files to", mode="d", nullable=True)
+        self.tuning_folder = FileEdit(label="tuning files to", mode=FileDialogMode.EXISTING_DIRECTORY, nullable=True)
         self.export_button = PushButton(text="Export tuning (Pi 4 and Pi 5)")
         self.extend(
             [
@@ -239,20 +240,17 @@ class CalibrateWidget(Container):
             return
         self._folder = Path(folder)
         self._extras = {}
+        keys: dict[str, str] = {}
         for role, paths in found.items():
             frames: list[Source] = list(paths) if isinstance(paths, list) else [paths]
             if role not in self.roles:
                 self._extras[role] = frames
                 continue
-            key = "; ".join(str(p) for p in frames)
-            self._sources[key] = frames
-        for combo in self.roles.values():
-            combo.reset_choices()
+            keys[role] = "; ".join(str(p) for p in frames)
+            self._sources[keys[role]] = frames
         for role, combo in self.roles.items():
-            paths = found.get(role)
-            combo.value = (
-                None if paths is None else "; ".join(str(p) for p in (paths if isinstance(paths, list) else [paths]))
-            )
+            combo.reset_choices()
+            combo.value = keys.get(role)
 
     # Calibrating -------------------------------------------------------------------------------------------------
 
@@ -263,8 +261,8 @@ class CalibrateWidget(Container):
             say_error(PicamcalError("choose the white reference: a layer, or a folder of references"))
             return None
         folder = self._folder
-        paths = [item if isinstance(item, Path) else item.path for frames in refs.values() for item in frames]
-        paths = [path for path in paths if path is not None]
+        files = (item if isinstance(item, Path) else item.path for frames in refs.values() for item in frames)
+        paths = [path for path in files if path is not None]
         if folder is not None and any(path.parent != folder for path in paths):
             folder = None  # the folder's light and extra colours belong to its references only
         refs.update(self._extras if folder is not None else {})

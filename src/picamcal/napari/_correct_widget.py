@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+from magicgui.types import FileDialogMode
 from magicgui.widgets import CheckBox, ComboBox, Container, FileEdit, PushButton, Table
 
 from ..calibration import Calibration
@@ -429,12 +430,12 @@ class CorrectWidget(Container):
         self._calibrations: dict[str, Calibration] = {}
         self._penalty_layers: list[Any] = []
         self.calibration_choice = ComboBox(label="calibration", choices=self._calibration_choices, nullable=True)
-        self.open_file = FileEdit(label="open", mode="r", filter="*.npz", nullable=True)
+        self.open_file = FileEdit(label="open", mode=FileDialogMode.EXISTING_FILE, filter="*.npz", nullable=True)
         self.mode_choice = ComboBox(label="mode", choices=list(MODE_NAMES), value=Mode.CENTRE.value)
         self.correct_button = PushButton(text="Correct the selected layers")
         self.show_penalty = CheckBox(text="Show the noise penalty over the image")
         self.output_format = ComboBox(label="format", choices=list(BATCH_FORMATS), value="float32-tiff")
-        self.folder = FileEdit(label="save to", mode="d", nullable=True)
+        self.folder = FileEdit(label="save to", mode=FileDialogMode.EXISTING_DIRECTORY, nullable=True)
         self.overwrite = CheckBox(text="Replace existing outputs (--overwrite)")
         self.save_button = PushButton(text="Save the selected layers' corrections")
         self.extend(
