@@ -9,11 +9,9 @@ byte, but for a batch's good outputs); every input unchanged, byte for byte.
 The bad files are made here, by code, from one small real run (a simulated 96 x 64 IMX219 without noise, its
 calibration and tuning file). Every case is a process of its own, as a command typed at a shell; they all run in one
 module fixture, two at a time (the machine has two cores), and the parametrised tests only check what each gave.
-Each case's process is forked from a process that has imported the command line and the libraries the commands
-use (:data:`PRELOAD`), so that the corpus does not spend most of its time starting Python and importing numpy 250
-times: the case then runs ``picamcal.cli.main`` in its own folder and environment, its standard input
-``/dev/null``, its output and errors into files, and ends as a Python process ends (``atexit`` handlers, streams
-flushed, exit status).
+Each case's process is forked from one that has imported the command line and the libraries the commands use
+(``PRELOAD``, tests/forked_python.py), so that the corpus does not spend most of its time starting Python and
+importing numpy 250 times.
 """
 
 from __future__ import annotations
@@ -27,8 +25,6 @@ import queue
 import shutil
 import stat
 import struct
-import subprocess
-import sys
 import time
 import zipfile
 import zlib
@@ -42,10 +38,14 @@ import pytest
 import tifffile
 from PIL import Image
 
+from forked_python import forkers
+
 #: A case that runs longer than this is taken to hang: every case reads files of a few kilobytes and ends in a few
 #: seconds, so this is a guard against waiting for ever (a FIFO read), not a measure of speed.
 TIMEOUT_S = 120
-#: What the forking process imports before the first case: the command line and what most commands load.
+#: Each case runs as ``python3 -c CLI ARGV...`` (in a child of a forking process that has imported ``PRELOAD``: the
+#: command line and what most commands load).
+CLI = "from picamcal.cli import main; main()"
 PRELOAD = ("picamcal.cli", "numpy", "picamcal.raw", "picamcal.calibration", "picamcal.correct", "tifffile", "rawpy")
 # Over 200 commands of a second or two each, and the small run they share: the fast loop leaves the corpus out.
 pytestmark = pytest.mark.slow
@@ -1169,94 +1169,15 @@ class Outcome:
     inputs_after: dict
 
 
-# The forking process: it reads one job a line (JSON: argv, cwd, env, the output files), forks a child that runs the
-# command line as ``python3 -c "from picamcal.cli import main; main()" ARGV`` would, and answers with its exit
-# status (null when it ran over the timeout and was killed).
-_FORKER = """
-import atexit, importlib, json, os, signal, sys, time, traceback
-for name in sys.argv[1:]:
-    importlib.import_module(name)
-from picamcal.cli import main
-replies = sys.stdout
-for line in sys.stdin:
-    job = json.loads(line)
-    pid = os.fork()
-    if pid == 0:
-        code = 1
-        try:
-            os.chdir(job["cwd"])
-            os.environ.clear()
-            os.environ.update(job["env"])
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-            for fd, opened in ((0, os.open(os.devnull, os.O_RDONLY)),
-                               (1, os.open(job["stdout"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)),
-                               (2, os.open(job["stderr"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644))):
-                os.dup2(opened, fd)
-                os.close(opened)
-            sys.argv = ["-c", *job["argv"]]
-            try:
-                main()
-                code = 0
-            except SystemExit as exc:
-                if exc.code is None or isinstance(exc.code, int):
-                    code = exc.code or 0
-                else:
-                    print(exc.code, file=sys.stderr)
-            except BaseException:
-                traceback.print_exc()
-            atexit._run_exitfuncs()
-        finally:
-            for stream in (sys.stdout, sys.stderr):
-                try:
-                    stream.flush()
-                except Exception:
-                    pass
-            os._exit(code)
-    deadline = time.monotonic() + job["timeout"]
-    while (done := os.waitpid(pid, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
-        time.sleep(0.005)
-    if done[0] == 0:
-        os.kill(pid, signal.SIGKILL)
-        os.waitpid(pid, 0)
-        status = None
-    else:
-        status = os.waitstatus_to_exitcode(done[1])
-    replies.write(json.dumps(status) + "\\n")
-    replies.flush()
-"""
-
-
-class Forker:
-    """One forking process (see :data:`_FORKER`); :meth:`run` runs one case in a child of it."""
-
-    def __init__(self) -> None:
-        self.process = subprocess.Popen([sys.executable, "-c", _FORKER, *PRELOAD], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE, text=True)  # fmt: skip
-
-    def run(self, argv: list[str], cwd: Path, env: dict[str, str], streams: Path) -> tuple[int | None, str, str]:
-        out, err = streams.with_suffix(".out"), streams.with_suffix(".err")
-        job = {"argv": argv, "cwd": str(cwd), "env": env, "stdout": str(out), "stderr": str(err), "timeout": TIMEOUT_S}
-        assert self.process.stdin is not None and self.process.stdout is not None
-        self.process.stdin.write(json.dumps(job) + "\n")
-        self.process.stdin.flush()
-        status = json.loads(self.process.stdout.readline())
-        return status, out.read_text(errors="replace"), err.read_text(errors="replace")
-
-    def close(self) -> None:
-        assert self.process.stdin is not None
-        self.process.stdin.close()
-        self.process.wait(timeout=60)
-
-
-def run_case(forkers: queue.Queue, one: Case, folder: Path, argv: list[str], shared: Path, streams: Path) -> Outcome:
+def run_case(started: queue.Queue, one: Case, folder: Path, argv: list[str], shared: Path, streams: Path) -> Outcome:
     env = {k: v for k, v in os.environ.items() if k != "PICAMCAL_MAX_PIXELS"} | one.env
     folder_before, inputs_before = snapshot(folder), shared_inputs(argv, shared)
-    forker = forkers.get()
+    forker = started.get()
     start = time.monotonic()
     try:
-        status, stdout, stderr = forker.run(argv, folder, env, streams)
+        status, stdout, stderr = forker.run(CLI, argv, cwd=folder, env=env, streams=streams, timeout=TIMEOUT_S)
     finally:
-        forkers.put(forker)
+        started.put(forker)
     seconds = time.monotonic() - start
     return Outcome(argv, status, stdout, stderr, seconds, folder_before, snapshot(folder), inputs_before,
                    shared_inputs(argv, shared))  # fmt: skip
@@ -1279,17 +1200,9 @@ def corpus(tmp_path_factory, request) -> dict:
     before = snapshot(shared)
     streams = root / "streams"
     streams.mkdir()
-    forkers: queue.Queue = queue.Queue()
-    started = [Forker() for _ in range(2)]
-    for forker in started:
-        forkers.put(forker)
     numbers = itertools.count()
-    try:
-        with ThreadPoolExecutor(max_workers=2) as pool:
-            outcomes = list(pool.map(lambda job: run_case(forkers, *job, streams / f"{next(numbers):03d}"), jobs))
-    finally:
-        for forker in started:
-            forker.close()
+    with forkers(2, PRELOAD) as started, ThreadPoolExecutor(max_workers=2) as pool:
+        outcomes = list(pool.map(lambda job: run_case(started, *job, streams / f"{next(numbers):03d}"), jobs))
     return {
         "cases": {param.id: outcome for param, outcome in zip(params, outcomes, strict=True)},
         "shared_before": before,
