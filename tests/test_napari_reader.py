@@ -684,6 +684,13 @@ def test_the_dialog_asks_for_a_dumps_options_as_the_command_line_does(display, f
         assert black.submit() and black.options == {"black_level": [64.0]}
     finally:
         black.dialog.deleteLater()
+    suggested = {"raw_format": "SBGGR10_CSI2P", "size": "3280x2464", "sensor": "imx219"}  # headless_defaults' kind
+    full = _dialog.ReadOptionsDialog(_dialog.Request(path, _dialog.HEADLESS, "a full frame?", suggested))
+    try:
+        assert full.answers() == {**dict.fromkeys(full.fields, ""), **suggested}  # the fields start filled in
+        assert full.fields["stride"].placeholderText() == "libcamera's alignment"
+    finally:
+        full.dialog.deleteLater()
 
 
 def _reader_request(path: Path) -> _dialog.Request:
