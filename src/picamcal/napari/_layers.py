@@ -61,9 +61,9 @@ DIVERGING_COLORMAP = "PiYG"
 NOISE_COLORMAP = "inferno"
 #: The unit of the layers' scale where the sensor's pixel pitch is known (napari 0.9's ``units``, read by pint).
 UNITS = "micrometer"
-#: The percentile of an image's values its contrast runs up to (from a subsample of at most _SAMPLE pixels).
+#: The percentile of an image's values its contrast runs up to (from a subsample of about _SAMPLE pixels).
 DISPLAY_PERCENTILE = 99.5
-_SAMPLE = 1 << 18
+_SAMPLE = 1 << 16
 #: The RawImage metadata copied into a layer's record when the file has it.
 _FILE_KEYS = (
     "format",
@@ -283,7 +283,7 @@ def _scale(size: float | None, leading: int = 0) -> dict[str, Any]:
 def display_limits(data: np.ndarray, low: float | None = 0.0, *, rgb: bool = False) -> tuple[float, float]:
     """Contrast limits for an image (its last two axes the rows and columns; with ``rgb`` the two before the
     channels): from ``low`` (default 0; None: the 0.5th percentile) to the :data:`DISPLAY_PERCENTILE` th percentile
-    of its values, from a subsample of at most about 260 000 pixels of each frame.
+    of its values, from a regular subsample of about 65 000 pixels of each frame (a few milliseconds at 12 MP).
 
     Examples
     --------
@@ -293,12 +293,15 @@ def display_limits(data: np.ndarray, low: float | None = 0.0, *, rgb: bool = Fal
     rows, cols = data.shape[-3:-1] if rgb else data.shape[-2:]
     step = max(1, math.isqrt(max(1, rows * cols // _SAMPLE)))
     view = data[..., ::step, ::step, :] if rgb else data[..., ::step, ::step]
-    sample = np.asarray(view)
-    sample = sample[np.isfinite(sample)] if sample.dtype.kind == "f" else sample.ravel()
+    sample = np.ravel(view)
+    if sample.dtype.kind == "f" and not np.isfinite(sample).all():
+        sample = sample[np.isfinite(sample)]
     if sample.size == 0:
         return (0.0, 1.0)
-    top = float(np.percentile(sample, DISPLAY_PERCENTILE))
-    bottom = float(np.percentile(sample, 100 - DISPLAY_PERCENTILE)) if low is None else float(low)
+    if low is None:
+        bottom, top = (float(v) for v in np.percentile(sample, [100 - DISPLAY_PERCENTILE, DISPLAY_PERCENTILE]))
+    else:
+        bottom, top = float(low), float(np.percentile(sample, DISPLAY_PERCENTILE))
     if not top > bottom:
         top = bottom + max(abs(bottom) * 1e-3, 1e-6)
     return (round(bottom, 6), round(top, 6))
