@@ -57,10 +57,23 @@ class _PhaseReports:
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _napari(pytestconfig: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Any:
+def _qt_application(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The QApplication, on a virtual display started for it, before pytest-qt's ``qapp`` would make one; napari's
+    settings (read when they are first loaded, as it is made) in a folder of the session, not the user's home. The
+    folder."""
+    folder = tmp_path_factory.mktemp("napari")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("NAPARI_CONFIG", str(folder / "settings.yaml"))
+        patch.setenv("XDG_CACHE_HOME", str(folder / "cache"))  # napari's theme icons
+        qt_application_on_virtual_display()
+    return folder
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _napari(pytestconfig: pytest.Config, _qt_application: Path) -> Any:
     """What napari's pytest plugin gives its fixture (the plugin is off): its two options, at their defaults, and the
-    phase reports; napari's settings and cache in a folder of the session rather than the user's home; and the
-    QApplication, on a virtual display started for it."""
+    phase reports; and, while this module runs, napari's cache in the session's folder rather than the user's home
+    (put back after, for the modules after it and the programs they start)."""
     plugin = None
     if not pytestconfig.pluginmanager.has_plugin("napari"):
         for option in ("--show-napari-viewer", "--save-leaked-object-graph"):
@@ -68,12 +81,9 @@ def _napari(pytestconfig: pytest.Config, tmp_path_factory: pytest.TempPathFactor
         plugin = pytestconfig.pluginmanager.register(_PhaseReports(), "picamcal-napari-phase-reports")
     import matplotlib
 
-    matplotlib.get_cachedir()  # its font cache stays where it is (the folder is kept once asked for)
+    matplotlib.get_cachedir()  # the report's figures: their font cache stays where it is (asked once, kept)
     with pytest.MonkeyPatch.context() as patch:
-        folder = tmp_path_factory.mktemp("napari")
-        patch.setenv("NAPARI_CONFIG", str(folder / "settings.yaml"))
-        patch.setenv("XDG_CACHE_HOME", str(folder / "cache"))  # napari's theme icons
-        qt_application_on_virtual_display()
+        patch.setenv("XDG_CACHE_HOME", str(_qt_application / "cache"))
         yield
     if plugin is not None:
         pytestconfig.pluginmanager.unregister(name="picamcal-napari-phase-reports")
@@ -255,7 +265,9 @@ def test_save_writes_the_files_picamcal_correct_writes(viewer, qtbot, run, said,
 
 
 @pytest.mark.slow
-def test_the_calibrate_widget_gives_the_calibration_and_verdicts_of_the_cli(viewer, qtbot, said, cli, tmp_path):
+def test_the_calibrate_widget_gives_the_calibration_and_verdicts_of_the_cli(
+    viewer, qtbot, said, cli, tmp_path, monkeypatch
+):
     from qtpy.QtCore import QTimer
 
     from picamcal.report import write_report
@@ -283,6 +295,7 @@ def test_the_calibrate_widget_gives_the_calibration_and_verdicts_of_the_cli(view
     assert ours is not None and ours.to_arrays().keys() == theirs.to_arrays().keys()
     for name, array in theirs.to_arrays().items():
         np.testing.assert_array_equal(ours.to_arrays()[name], array, err_msg=name)
+    monkeypatch.setattr("picamcal.report.html._figures", lambda *_: [])  # not compared; 5 s of plots
     report = write_report(theirs, tmp_path / "report")
     checks = json.loads((report.parent / "report.json").read_text())["checks"]
     assert widget.checks_table.value["data"] == [[c["name"], c["verdict"], c["summary"]] for c in checks]
