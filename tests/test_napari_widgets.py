@@ -188,9 +188,17 @@ def pixels(path: Path) -> np.ndarray:
     return tifffile.imread(path) if path.suffix == ".tiff" else np.asarray(Image.open(path))
 
 
+def test_napari_builds_the_manifests_widgets_with_its_viewer(viewer):
+    # From the Plugins menu: npe2 imports each class the manifest names and napari passes it the viewer.
+    for name, kind in (("Correct", CorrectWidget), ("Calibrate", CalibrateWidget), ("Inspect", InspectWidget)):
+        _, widget = viewer.window.add_plugin_dock_widget("picamcal", name)
+        assert type(widget) is kind and getattr(widget.viewer, "__wrapped__", widget.viewer) is viewer  # napari's proxy
+
+
 # Correct -----------------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_correct_widgets_layers_are_picamcal_correct_in_every_mode(viewer, qtbot, run, said):
     widget = docked(viewer, CorrectWidget(viewer))
     white, target = add_frame(viewer, run["white"]), add_frame(viewer, run["target"])
@@ -326,16 +334,31 @@ def test_the_calibrate_widget_gives_the_calibration_and_verdicts_of_the_cli(
         )
 
 
+def test_a_white_alone_gives_the_flat_calibration_of_the_cli(viewer, qtbot, run, said, cli, tmp_path):
+    widget = docked(viewer, CalibrateWidget(viewer))
+    widget.folder.value = run["white"].parent  # assigns the five references, as calibrate FOLDER finds them
+    assert widget.roles["blue"].value == str(run["blue"])
+    for role in ("red", "green", "blue", "black"):
+        widget.roles[role].value = None
+    widget.calibrate()
+    finish(qtbot, widget)
+    status, _, _ = cli("calibrate", "--white", run["white"], "--out", tmp_path / "flat.npz")
+    theirs = load_calibration(tmp_path / "flat.npz")
+    assert status == 0 and widget.calibration is not None and widget.calibration.kind == theirs.kind == "flat"
+    for name, array in theirs.to_arrays().items():
+        np.testing.assert_array_equal(widget.calibration.to_arrays()[name], array, err_msg=name)
+    assert widget.checks_table.value["data"][0][0] == "vignetting_centre" and said["error"] == []
+
+
 # Inspect -----------------------------------------------------------------------------------------------------------
 
 
 def test_inspect_shows_the_rows_of_picamcal_inspect(viewer, qtbot, run, said, cli):
-    _, widget = viewer.window.add_plugin_dock_widget("picamcal", "Inspect")  # through the manifest, as napari does
-    assert isinstance(widget, InspectWidget)
+    widget = docked(viewer, InspectWidget(viewer))
     white = add_frame(viewer, run["white"])
-    maps = add(viewer, calibration_layers(load_calibration(run["cal"]), "cal"))
-    select(viewer, white, *maps)  # the frame and a calibration: their two files
-    finish(qtbot, widget)
+    penalty = add(viewer, calibration_layers(load_calibration(run["cal"]), "cal")[-1:])[0]  # one map is enough
+    select(viewer, white, penalty)  # the frame and a calibration: their two files, once the selection has settled
+    qtbot.waitUntil(lambda: len(widget.records) == 2, timeout=WAIT_MS)
     status, _, out = cli("inspect", run["white"], run["cal"], "--json")
     assert status == 0 and json_safe(widget.records) == json.loads(out)
     status, _, table = cli("inspect", run["white"], run["cal"])

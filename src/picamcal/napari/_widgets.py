@@ -118,6 +118,10 @@ def inspection_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], li
     return columns, rows, lines
 
 
+#: Milliseconds the selection must stay as it is before the Inspect widget looks at its files.
+SETTLE_MS = 150
+
+
 def files_of_layers(layers: Iterable[Any]) -> list[Path]:
     """The files the layers came from (a raw frame's, a stack's, a calibration's), each once, in order."""
     found: dict[str, Path] = {}
@@ -137,10 +141,13 @@ def _inspect(paths: list[Path]) -> list[dict[str, Any]]:
 class InspectWidget(Container):
     """``picamcal inspect`` for the files of the selected layers: its table (read-only) and its notes and warnings.
 
-    It follows the selection; the button inspects again (after the files changed on disk).
+    It follows the selection (once it has settled: a change of many layers at once, or the viewer closing, is one
+    look, or none); the button inspects again (after the files changed on disk).
     """
 
     def __init__(self, napari_viewer: napari.viewer.Viewer) -> None:
+        from qtpy.QtCore import QTimer
+
         super().__init__()
         self.viewer = napari_viewer
         self.host = WorkerHost()
@@ -150,15 +157,35 @@ class InspectWidget(Container):
         self.notes = TextEdit(value="")
         self.notes.read_only = True
         self.extend([self._button, self.table, self.notes])
-        self._button.changed.connect(self.inspect)
-        napari_viewer.layers.selection.events.changed.connect(self.inspect)
         self._asked = 0
+        self._shown: list[Path] | None = None
+        self._settled = QTimer(self.native)  # goes with the widget: nothing is looked at once the viewer closes
+        self._settled.setSingleShot(True)
+        self._settled.setInterval(SETTLE_MS)
+        self._settled.timeout.connect(self._selection_settled)
+        self._button.changed.connect(self.inspect)
+        napari_viewer.layers.selection.events.changed.connect(self._selection_changed)
+
+    def _selection_changed(self, *_: Any) -> None:
+        try:
+            self._settled.start()  # again: a change within SETTLE_MS of the last waits for the next
+        except RuntimeError:  # the widget is gone, the viewer closing: nothing to look at
+            pass
+
+    def _selected_files(self) -> list[Path]:
+        selection = self.viewer.layers.selection
+        return files_of_layers(layer for layer in self.viewer.layers if layer in selection)  # in the list's order
+
+    def _selection_settled(self) -> None:
+        if self._selected_files() != self._shown:  # not the files shown already
+            self.inspect()
 
     def inspect(self, *_: Any) -> Any:
-        """Inspect the files of the selected layers in a worker; the table shows them when it is done."""
-        selection = self.viewer.layers.selection
-        paths = files_of_layers(layer for layer in self.viewer.layers if layer in selection)  # in the list's order
+        """Inspect the files of the selected layers in a worker; the table shows them when it is done. The worker, or
+        None when no file is selected."""
+        paths = self._selected_files()
         self._asked += 1
+        self._shown = paths
         if not paths:
             self._show([], self._asked)
             return None
