@@ -225,19 +225,22 @@ def test_the_correct_widgets_layers_are_picamcal_correct_in_every_mode(viewer, q
 
 def test_the_noise_penalty_toggle_adds_and_removes_its_layer(viewer, qtbot, run, said):
     widget = docked(viewer, CorrectWidget(viewer))
-    select(viewer, add_frame(viewer, run["white"]))
-    widget.open_file.value = run["cal"]
+    white = add_frame(viewer, run["white"])
+    select(viewer, white)
+    add(viewer, calibration_layers(load_calibration(run["cal"]), "cal")[-1:])  # a calibration opened as its maps
+    assert widget.calibration_choice.value == str(run["cal"])  # is the one to correct with
     widget.show_penalty.value = True
     finish(qtbot, widget)
     layer = viewer.layers["noise penalty (centre)"]
     expected, _, _ = noise_penalty_layer(load_calibration(run["cal"]), "centre", read_raw(run["white"]))
     np.testing.assert_array_equal(layer.data, expected)
-    assert layer.data.shape == (SIZE[1], SIZE[0]) and layer.colormap.name == "inferno" and layer.blending == "additive"
+    assert layer.data.shape == (SIZE[1], SIZE[0]) and list(layer.scale) == list(white.scale)  # over the image
+    assert layer.colormap.name == "inferno" and layer.blending == "additive"
     widget.mode_choice.value = "flat"  # follows the mode
     finish(qtbot, widget)
-    assert [layer.name for layer in viewer.layers if "noise penalty" in layer.name] == ["noise penalty (flat)"]
+    assert [layer.name for layer in viewer.layers if layer.name.startswith("noise penalty")] == ["noise penalty (flat)"]
     widget.show_penalty.value = False
-    assert not any("noise penalty" in layer.name for layer in viewer.layers)
+    assert not any(layer.name.startswith("noise penalty") for layer in viewer.layers)
     assert said["error"] == []
 
 
