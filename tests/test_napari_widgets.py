@@ -13,7 +13,6 @@ Every comparison is exact: the widgets call the library functions the command li
 from __future__ import annotations
 
 import json
-import math
 import warnings
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from conftest import simulated_calibration
 from napari_support import qt_application_on_virtual_display
 from picamcal import load_calibration, read_raw
 from picamcal.cli import main
+from picamcal.cli.inspecting import _json_safe
 from picamcal.napari._layers import calibration_layers, raw_layers
 from picamcal.napari._sample import calibration_run, sample_folder
 from picamcal.napari._widgets import (
@@ -171,17 +171,6 @@ def docked(viewer: Any, widget: Any) -> Any:
 def finish(qtbot: Any, widget: Any) -> None:
     """Wait, processing events, until the widget's workers have finished and their results are shown."""
     qtbot.waitUntil(lambda: not widget.host.busy, timeout=WAIT_MS)
-
-
-def json_safe(value: Any) -> Any:
-    """As ``picamcal inspect --json`` prints it: numbers that are not finite as null, tuples as lists."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
 
 
 def pixels(path: Path) -> np.ndarray:
@@ -363,7 +352,7 @@ def test_inspect_shows_the_rows_of_picamcal_inspect(viewer, qtbot, run, said, cl
     select(viewer, white, penalty)  # the frame and a calibration: their two files, once the selection has settled
     qtbot.waitUntil(lambda: len(widget.records) == 2, timeout=WAIT_MS)
     status, _, out = cli("inspect", run["white"], run["cal"], "--json")
-    assert status == 0 and json_safe(widget.records) == json.loads(out)
+    assert status == 0 and _json_safe(widget.records) == json.loads(out)
     status, _, table = cli("inspect", run["white"], run["cal"])
     rows = [[cell.strip() for cell in line.strip().strip("│").split("│")] for line in table.splitlines()]
     shown = widget.table.value
