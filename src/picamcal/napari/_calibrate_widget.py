@@ -117,9 +117,8 @@ def export_tuning_files(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"cannot create the folder: {exc.strerror or exc}", out) from exc
-    return [save_tuning(path, tuning, overwrite=overwrite) for path, tuning in zip(outputs, exported, strict=True)], (
-        chosen.note
-    )
+    written = [save_tuning(path, tuning, overwrite=overwrite) for path, tuning in zip(outputs, exported, strict=True)]
+    return written, chosen.note
 
 
 def _calibrate(

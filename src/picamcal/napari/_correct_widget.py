@@ -214,8 +214,8 @@ def noise_penalty_layer(
     calibration's own map layer show it; here it is resampled to every pixel of ``raw`` (its sensor mode's fields,
     :func:`picamcal.calibration.resample.calibration_for_raw`, as :func:`picamcal.correct` takes them) with the
     spline the correction interpolates its fields with (held at the outer bins' values beyond their centres), or of
-    the calibration's own frame without ``raw``. Colour map
-    ``inferno`` from 1 (no penalty), additive blending at half opacity, named ``"noise penalty (<mode>)"``.
+    the calibration's own frame without ``raw``. Colour map ``inferno`` from 1 (no penalty), additive blending at
+    half opacity, named ``"noise penalty (<mode>)"``, with the frame's physical pixel size as its scale.
 
     Raises
     ------
