@@ -56,6 +56,7 @@ LONGEST_FIRST = (
     "test_kernels.py",  # 51 s
     "test_live_modes.py",  # 48 s
     "test_report.py",  # 48 s
+    "test_napari_widgets.py",  # 44 s
 )
 
 

@@ -191,6 +191,7 @@ SUITES = {
     "batch": "bench_batch",
     "live": "bench_live",
     "virtualcam": "bench_virtualcam",
+    "napari": "bench_napari",
 }
 #: The documentation site's Benchmarks page, where ``--write-docs`` puts the figures.
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"

@@ -24,7 +24,7 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 README = ROOT / "README.md"
-TUTORIALS = ["microscope-white", "full-rig", "batch", "darktable", "live", "virtual-camera"]
+TUTORIALS = ["microscope-white", "full-rig", "batch", "darktable", "live", "virtual-camera", "napari"]
 #: What the build writes into the source folder, left out of the copy it builds from.
 GENERATED = ("_build", "_generated", "auto_examples", "generated", "picamcal*.rst", "sg_execution_times.rst")
 SITE_PACKAGES = (

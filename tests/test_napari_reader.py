@@ -4,13 +4,12 @@ Every raw format opens through the reader with the mosaic EQUAL to ``read_raw``'
 linear RGB; a calibration opens as its maps; a folder as a stack. What is not picamcal's is declined quietly; what is
 but is bad shows the command line's one line in napari's notification area and opens nothing; the writers write what
 ``picamcal correct`` writes, and refuse what the command line refuses. The files are made with picamcal's own writers
-and simulator. Only two tests start Qt (napari's viewer, the dialog), on an X server of this module's own (Xvfb).
+and simulator. Only two tests start Qt (napari's viewer, the dialog), on a virtual X display (Xvfb).
 """
 
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -564,38 +563,15 @@ def test_npe2_finds_the_manifest_and_it_validates(files):
 
 @pytest.fixture(scope="module")
 def display(tmp_path_factory):
-    """This process's QApplication, on an X display. One that exists already has its display (another module's);
-    else this module starts Xvfb (Mesa gives napari's canvas OpenGL) and opens napari's QApplication on it. The
-    QApplication lives as long as the process, and so does the display: Xvfb runs with ``-terminate``, ending when
-    its last client goes as the process exits. The environment is put back once the QApplication exists; napari's
-    settings go to a file of the session, not the user's."""
+    """This process's QApplication, on a virtual X display (:mod:`napari_support`); napari's settings in a file of the
+    session, not the user's."""
     from qtpy.QtWidgets import QApplication
+
+    from napari_support import qt_application_on_virtual_display
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("NAPARI_CONFIG", str(tmp_path_factory.mktemp("napari") / "settings.yaml"))
-        if QApplication.instance() is None:
-            if shutil.which("Xvfb") is None:
-                pytest.skip("Xvfb is not installed (Debian package xvfb)")
-            read, write = os.pipe()
-            server = subprocess.Popen(
-                ["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp", "-terminate"],
-                pass_fds=(write,),
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                start_new_session=True,  # not in the test's process group: a test's signal does not reach it
-            )
-            os.close(write)
-            with os.fdopen(read) as announced:
-                number = announced.readline().strip()  # written once the server accepts connections
-            if not number:
-                server.kill()
-                pytest.fail(f"Xvfb did not start (exit status {server.wait()})")
-            with pytest.MonkeyPatch.context() as environment:
-                environment.setenv("DISPLAY", f":{number}")
-                environment.setenv("QT_QPA_PLATFORM", "xcb")
-                from napari.qt import get_qapp
-
-                get_qapp()  # napari's: with the attributes its OpenGL canvas needs, set before it exists
+        qt_application_on_virtual_display()
         yield QApplication.instance()
 
 
