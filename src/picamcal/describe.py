@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import os
 import warnings
 from collections.abc import Callable
@@ -397,3 +398,111 @@ def inspect_files(items: list[Path], read: Callable[[Path], RawImage] = read_raw
         if record["format"] == NOT_AN_IMAGE:
             raise PicamcalError(record["reason"], items[0])
     return records
+
+
+#: The columns of ``picamcal inspect``'s table (and a ``frames`` column where a file has several).
+INSPECT_COLUMNS = ("file", "format", "sensor", "size", "sensor mode", "pattern", "bits", "black", "white", "signal",
+                   "exposure", "gain")  # fmt: skip
+
+
+def inspection_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[str]], list[str], set[str]]:
+    """``picamcal inspect``'s table and the lines under it, for the records of :func:`inspect_files`: the columns,
+    the rows (each cell as the command prints it), the lines (what could not be read, what is not raw, each note
+    and warning once with the files that gave it) and which of those lines are warnings.
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, render
+    >>> _ = picamcal.write_dng("white.dng", render(make_camera("imx219", size=(64, 48)), "white", rng=1))
+    >>> columns, rows, lines, _ = inspection_table(inspect_files([Path("white.dng")]))
+    >>> dict(zip(columns, rows[0]))["size"], dict(zip(columns, rows[0]))["pattern"], lines
+    ('64x48', 'BGGR', [])
+    """
+    several = any("frames" in r for r in records)
+    columns = [*INSPECT_COLUMNS, *(["frames"] if several else [])]
+    rows = []
+    for r in records:
+        if "width" not in r:  # not an image (a sidecar, a calibration, notes), or unreadable
+            rows.append([Path(r["path"]).name, r["format"] if r["readable"] else "unreadable"])
+            continue
+        row = [
+            Path(r["path"]).name,
+            r["format"],
+            r.get("sensor") or ("?" if r["raw"] else "-"),
+            f"{r['width']}x{r['height']}",
+            _mode_cell(r.get("geometry")),
+            r.get("pattern", "-"),
+            r["bit_depth"],
+            _levels_cell(r.get("black_level")) if r["raw"] else "-",
+            r.get("white_level", "-"),
+            _signal_cell(r),
+            _figure_cell(r.get("exposure_time_s"), 1e3, " ms"),
+            _gain_cell(r),
+            *([r.get("frames", "-")] if several else []),
+        ]
+        rows.append([str(cell) for cell in row])
+    lines: list[str] = []
+    said: dict[str, list[str]] = {}  # each note or warning, with the files that gave it, in the order first given
+    for r in records:
+        name = Path(r["path"]).name
+        if "error" in r:
+            lines.append(f"{name}: cannot read: {r['error']}")
+        if "note" in r:
+            lines.append(f"{name}: not raw: {r['note']}")
+        if "width" not in r and "sensor_mode" in r:  # a calibration: where on the sensor it was taken
+            lines.append(f"{name}: sensor mode {r['sensor_mode']}")
+        for warning in [*r.get("notes", []), *r["warnings"]]:
+            said.setdefault(warning, []).append(name)
+    # Once each: a folder of frames of one size gives every one the same "taken as the imx296".
+    warned = set()
+    for warning, names in said.items():
+        who = names[0] if len(names) == 1 else f"{names[0]} and {len(names) - 1} more"
+        warned.add(f"{who}: {warning}")
+        lines.append(f"{who}: {warning}")
+    return columns, rows, lines, warned
+
+
+def _mode_cell(geometry: dict[str, Any] | None) -> str:
+    """A frame's sensor mode in a few characters: ``full``, ``full /2`` (binned 2 x 2), ``1920x1080@680,692``;
+    ``?`` when nothing said it (the whole sensor assumed)."""
+    if not geometry:
+        return "-"
+    x, y, w, h = geometry["crop"]
+    where = "full" if [x, y, w, h] == [0, 0, *geometry["sensor_size"]] else f"{w}x{h}@{x},{y}"
+    binned = f" /{geometry['binning']}" if geometry["binning"] > 1 else ""
+    return f"{where}{binned}" + (" ?" if geometry["source"] == "assumed" else "")
+
+
+def _levels_cell(levels: list[float] | None) -> str:
+    if not levels:
+        return "-"
+    if not all(math.isfinite(v) for v in levels):  # the notes below the table say why
+        return "unknown"
+    return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
+
+
+def _signal_cell(record: dict[str, Any]) -> str:
+    """The median DN over black, ``dark`` for a dark frame; ``?`` where the black level is unknown."""
+    if not record["raw"]:
+        return "-"
+    signal = record.get("signal_dn")
+    if signal is None:
+        return "?"
+    text = f"{signal:.0f}" if abs(signal) >= 10 else f"{signal:.1f}"
+    return f"{text} dark" if record.get("dark") else text
+
+
+def _gain_cell(record: dict[str, Any]) -> str:
+    """The analogue gain, else the ISO the file gives (legacy JPEG+raw and DNG files say that instead)."""
+    if record.get("analogue_gain"):
+        return _figure_cell(record["analogue_gain"])
+    return f"ISO {_figure_cell(record['iso'])}" if record.get("iso") else "-"
+
+
+def _figure_cell(value: Any, scale: float = 1.0, unit: str = "") -> str:
+    """A number of a file's metadata as the table shows it: "-" when absent or zero, as it is when not a number."""
+    if not value:
+        return "-"
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f"{scale * value:.3g}{unit}"
+    return str(value)

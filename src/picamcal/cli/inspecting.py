@@ -73,105 +73,17 @@ def _print_inspection(records: list[dict[str, Any]]) -> None:
     from rich.table import Table
     from rich.text import Text
 
+    from ..describe import inspection_table
+
+    columns, rows, lines, warned = inspection_table(records)
     table = Table()
-    headings = [
-        "file",
-        "format",
-        "sensor",
-        "size",
-        "sensor mode",
-        "pattern",
-        "bits",
-        "black",
-        "white",
-        "signal",
-        "exposure",
-        "gain",
-    ]
-    frames = any("frames" in r for r in records)
-    for heading in [*headings, "frames"] if frames else headings:
+    for heading in columns:
         table.add_column(heading)
-    for r in records:
-        if "width" not in r:  # not an image (a sidecar, a calibration, notes), or unreadable
-            table.add_row(Text(Path(r["path"]).name), Text(r["format"] if r["readable"] else "unreadable"))
-            continue
-        row = [
-            Path(r["path"]).name,
-            r["format"],
-            r.get("sensor") or ("?" if r["raw"] else "-"),
-            f"{r['width']}x{r['height']}",
-            _mode(r.get("geometry")),
-            r.get("pattern", "-"),
-            r["bit_depth"],
-            _levels(r.get("black_level")) if r["raw"] else "-",
-            r.get("white_level", "-"),
-            _signal(r),
-            _figure(r.get("exposure_time_s"), 1e3, " ms"),
-            _gain(r),
-            *([r.get("frames", "-")] if frames else []),
-        ]
+    for row in rows:
         # Text, not markup: a file's name or metadata may hold brackets that rich would take for markup.
-        table.add_row(*(Text(str(cell)) for cell in row))
+        table.add_row(*(Text(cell) for cell in row))
     stdout = stdout_console()
     stdout.print(table)
-    said: dict[str, list[str]] = {}  # each note or warning, with the files that gave it, in the order first given
-    for r in records:
-        name = Path(r["path"]).name
-        if "error" in r:
-            stdout.print(f"{name}: cannot read: {r['error']}", markup=False, highlight=False, soft_wrap=True)
-        if "note" in r:
-            stdout.print(f"{name}: not raw: {r['note']}", markup=False, highlight=False, soft_wrap=True)
-        if "width" not in r and "sensor_mode" in r:  # a calibration: where on the sensor it was taken
-            stdout.print(f"{name}: sensor mode {r['sensor_mode']}", markup=False, highlight=False, soft_wrap=True)
-        for warning in [*r.get("notes", []), *r["warnings"]]:
-            said.setdefault(warning, []).append(name)
-    # Once each: a folder of frames of one size gives every one the same "taken as the imx296".
-    for warning, names in said.items():
-        who = names[0] if len(names) == 1 else f"{names[0]} and {len(names) - 1} more"
-        stdout.print(f"{who}: {warning}", style="yellow", markup=False, highlight=False, soft_wrap=True)
-
-
-def _mode(geometry: dict[str, Any] | None) -> str:
-    """A frame's sensor mode in a few characters: ``full``, ``full /2`` (binned 2 x 2), ``1920x1080@680,692``;
-    ``?`` when nothing said it (the whole sensor assumed)."""
-    if not geometry:
-        return "-"
-    x, y, w, h = geometry["crop"]
-    where = "full" if [x, y, w, h] == [0, 0, *geometry["sensor_size"]] else f"{w}x{h}@{x},{y}"
-    binned = f" /{geometry['binning']}" if geometry["binning"] > 1 else ""
-    return f"{where}{binned}" + (" ?" if geometry["source"] == "assumed" else "")
-
-
-def _levels(levels: list[float] | None) -> str:
-    if not levels:
-        return "-"
-    if not all(math.isfinite(v) for v in levels):  # the notes below the table say why
-        return "unknown"
-    return f"{levels[0]:g}" if len(set(levels)) == 1 else ",".join(f"{v:g}" for v in levels)
-
-
-def _signal(record: dict[str, Any]) -> str:
-    """The median DN over black, ``dark`` for a dark frame; ``?`` where the black level is unknown."""
-    if not record["raw"]:
-        return "-"
-    signal = record.get("signal_dn")
-    if signal is None:
-        return "?"
-    text = f"{signal:.0f}" if abs(signal) >= 10 else f"{signal:.1f}"
-    return f"{text} dark" if record.get("dark") else text
-
-
-def _gain(record: dict[str, Any]) -> str:
-    """The analogue gain, else the ISO the file gives (legacy JPEG+raw and DNG files say that instead)."""
-    if record.get("analogue_gain"):
-        return _figure(record["analogue_gain"])
-    return f"ISO {_figure(record['iso'])}" if record.get("iso") else "-"
-
-
-def _figure(value: Any, scale: float = 1.0, unit: str = "") -> str:
-    """A number of a file's metadata as the table shows it: "-" when absent or zero, as it is when not a number."""
-    if not value:
-        return "-"
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return f"{scale * value:.3g}{unit}"
-    return str(value)
+    for line in lines:
+        style = "yellow" if line in warned else None
+        stdout.print(line, style=style, markup=False, highlight=False, soft_wrap=True)

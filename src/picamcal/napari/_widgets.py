@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from magicgui.widgets import Container, PushButton, TextEdit
 
+from ..describe import INSPECT_COLUMNS
 from ._calibrate_widget import CalibrateWidget, export_tuning_files
 from ._correct_widget import (
     CorrectWidget,
@@ -31,7 +32,6 @@ if TYPE_CHECKING:
     import napari.viewer
 
 __all__ = [
-    "INSPECT_COLUMNS",
     "CalibrateWidget",
     "CorrectWidget",
     "InspectWidget",
@@ -42,27 +42,11 @@ __all__ = [
     "noise_penalty_layer",
 ]
 
-#: The columns of the Inspect table: those of ``picamcal inspect``'s table (``frames`` only where a file has several).
-INSPECT_COLUMNS = (
-    "file",
-    "format",
-    "sensor",
-    "size",
-    "sensor mode",
-    "pattern",
-    "bits",
-    "black",
-    "white",
-    "signal",
-    "exposure",
-    "gain",
-)
-
 
 def inspection_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[str]], list[str]]:
-    """``picamcal inspect``'s table and the lines below it, for the records of
-    :func:`picamcal.describe.inspect_files`: the columns, the rows (each cell as the command prints it) and the
-    notes and warnings (each warning once, naming the files that gave it).
+    """``picamcal inspect``'s table and the lines below it (:func:`picamcal.describe.inspection_table`), for the
+    records of :func:`picamcal.describe.inspect_files`: the columns, the rows (every row as long as the columns) and
+    the lines.
 
     Examples
     --------
@@ -73,49 +57,10 @@ def inspection_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], li
     >>> dict(zip(columns, rows[0]))["size"], dict(zip(columns, rows[0]))["pattern"], lines
     ('64x48', 'BGGR', [])
     """
-    from ..cli.inspecting import _figure, _gain, _levels, _mode, _signal
+    from ..describe import inspection_table
 
-    columns = list(INSPECT_COLUMNS)
-    several = any("frames" in r for r in records)
-    if several:
-        columns.append("frames")
-    rows = []
-    for r in records:
-        if "width" not in r:  # not an image (a sidecar, a calibration, notes), or unreadable
-            row = [Path(r["path"]).name, r["format"] if r["readable"] else "unreadable"]
-        else:
-            row = [
-                Path(r["path"]).name,
-                r["format"],
-                r.get("sensor") or ("?" if r["raw"] else "-"),
-                f"{r['width']}x{r['height']}",
-                _mode(r.get("geometry")),
-                r.get("pattern", "-"),
-                r["bit_depth"],
-                _levels(r.get("black_level")) if r["raw"] else "-",
-                r.get("white_level", "-"),
-                _signal(dict(r)),
-                _figure(r.get("exposure_time_s"), 1e3, " ms"),
-                _gain(dict(r)),
-                *([r.get("frames", "-")] if several else []),
-            ]
-        rows.append([str(cell) for cell in row] + [""] * (len(columns) - len(row)))
-    lines: list[str] = []
-    said: dict[str, list[str]] = {}
-    for r in records:
-        name = Path(r["path"]).name
-        if "error" in r:
-            lines.append(f"{name}: cannot read: {r['error']}")
-        if "note" in r:
-            lines.append(f"{name}: not raw: {r['note']}")
-        if "width" not in r and "sensor_mode" in r:  # a calibration: where on the sensor it was taken
-            lines.append(f"{name}: sensor mode {r['sensor_mode']}")
-        for warning in [*r.get("notes", []), *r["warnings"]]:
-            said.setdefault(warning, []).append(name)
-    for warning, names in said.items():
-        who = names[0] if len(names) == 1 else f"{names[0]} and {len(names) - 1} more"
-        lines.append(f"{who}: {warning}")
-    return columns, rows, lines
+    columns, rows, lines, _ = inspection_table([dict(r) for r in records])
+    return columns, [row + [""] * (len(columns) - len(row)) for row in rows], lines
 
 
 #: Milliseconds the selection must stay as it is before the Inspect widget looks at its files.
