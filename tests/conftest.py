@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -103,3 +105,26 @@ def run_measured(*args: str, env: dict[str, str] | None = None, timeout: float =
             timeout=timeout,
         )
         return result.returncode, result.stderr, int(peak_file.read_text())
+
+
+@pytest.fixture
+def cli(monkeypatch, capfd):
+    """Run ``picamcal ARGS`` in this process: (exit status, the non-empty lines of stderr, stdout). A module with a
+    ``cli`` of its own (a subprocess, other settings) uses that one."""
+    from picamcal.cli import main
+
+    def run(*args: object) -> tuple[int, list[str], str]:
+        monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main's global settings are put back
+        with pytest.raises(SystemExit) as exit:
+            main([str(arg) for arg in args])
+        captured = capfd.readouterr()
+        return exit.value.code, [line for line in captured.err.splitlines() if line.strip()], captured.out
+
+    return run
+
+
+def one_error(status: int, lines: list[str]) -> str:
+    """The one error line of a refused command (exit status 2), without its prefix."""
+    assert status == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("picamcal: error: "), lines
+    return lines[0].removeprefix("picamcal: error: ")

@@ -1,4 +1,5 @@
-"""What the napari tests share: a virtual X display for napari's Qt viewer, one per test process.
+"""What the napari tests share: a virtual X display for napari's Qt viewer, one per test process (and the
+screen illuminator's tests their Xvfb).
 
 napari draws its canvas with OpenGL (vispy), which Qt's offscreen platform does not give; an X server with Mesa does.
 The suite runs as ``python3 -m pytest`` with no wrapper, so the first napari test of a process starts Xvfb itself and
@@ -22,22 +23,14 @@ SCREEN = (1600, 1200, 24)
 _started: dict[str, str] = {}
 
 
-def start_xvfb() -> str:
-    """Xvfb on a display number it finds free itself (-displayfd), ending with its last client; its name (``:N``)."""
+def start_xvfb(screen: tuple[int, int, int] = SCREEN, *options: str) -> tuple[subprocess.Popen, str]:
+    """Xvfb on a display number it finds free itself (-displayfd), with more ``options`` (``-terminate``: ending with
+    its last client; ``-wr``: a white root window); the server and the display's name (``:N``). Also the screen
+    illuminator's tests' (tests/test_screen.py)."""
     read, write = os.pipe()
-    width, height, depth = SCREEN
+    width, height, depth = screen
     server = subprocess.Popen(
-        [
-            "Xvfb",
-            "-displayfd",
-            str(write),
-            "-screen",
-            "0",
-            f"{width}x{height}x{depth}",
-            "-nolisten",
-            "tcp",
-            "-terminate",
-        ],
+        ["Xvfb", "-displayfd", str(write), "-screen", "0", f"{width}x{height}x{depth}", "-nolisten", "tcp", *options],
         pass_fds=(write,),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -49,7 +42,7 @@ def start_xvfb() -> str:
     if not number:
         server.kill()
         pytest.fail(f"Xvfb did not start (exit status {server.wait()})")
-    return f":{number}"
+    return server, f":{number}"
 
 
 def qt_application_on_virtual_display() -> str:
@@ -61,7 +54,7 @@ def qt_application_on_virtual_display() -> str:
         return _started.get("display", os.environ.get("DISPLAY", ""))
     if shutil.which("Xvfb") is None:
         pytest.skip("Xvfb is not installed (Debian package xvfb, see .ci/run)")
-    display = start_xvfb()
+    _, display = start_xvfb(SCREEN, "-terminate")
     saved = {name: os.environ.get(name) for name in ("DISPLAY", "QT_QPA_PLATFORM")}
     os.environ.update(DISPLAY=display, QT_QPA_PLATFORM="xcb")
     try:

@@ -5,41 +5,20 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from conftest import one_error
 from picamcal import calibrate, load_calibration, write_dng
 from picamcal.acquire.acquisition import acquire, open_rig
-from picamcal.cli import app, main
+from picamcal.cli import app
 from picamcal.raw import read_raw, to_picamera2
 from picamcal.simulate import make_camera, render, simulate_references
 
 SIZE = (160, 120)
-
-
-@pytest.fixture
-def cli(monkeypatch, capfd):
-    """Run ``picamcal ARGS`` in this process: (exit status, the non-empty lines of stderr, stdout)."""
-
-    def run(*args: object) -> tuple[int, list[str], str]:
-        monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main's global settings are put back
-        with pytest.raises(SystemExit) as exit:
-            main([str(arg) for arg in args])
-        captured = capfd.readouterr()
-        return exit.value.code, [line for line in captured.err.splitlines() if line.strip()], captured.out
-
-    return run
-
-
-def one_error(status: int, lines: list[str]) -> str:
-    """The one error line of a refused command (exit status 2), without its prefix."""
-    assert status == 2 and len(lines) == 1, lines
-    assert lines[0].startswith("picamcal: error: "), lines
-    return lines[0].removeprefix("picamcal: error: ")
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,6 @@ Every comparison is exact: the widgets call the library functions the command li
 from __future__ import annotations
 
 import json
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -24,10 +23,9 @@ from napari.utils._testsupport import make_napari_viewer, mock_app_model  # noqa
 from PIL import Image
 
 import picamcal
-from conftest import simulated_calibration
+from conftest import one_error, simulated_calibration
 from napari_support import qt_application_on_virtual_display
 from picamcal import load_calibration, read_raw
-from picamcal.cli import main
 from picamcal.cli.inspecting import _json_safe
 from picamcal.napari._layers import calibration_layers, raw_layers
 from picamcal.napari._sample import calibration_run, sample_folder
@@ -122,27 +120,6 @@ def said(monkeypatch: pytest.MonkeyPatch) -> dict[str, list[str]]:
     for kind, said_of_kind in lines.items():
         monkeypatch.setattr(notifications, f"show_{kind}", lambda message, *_, into=said_of_kind: into.append(message))
     return lines
-
-
-@pytest.fixture
-def cli(monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> Any:
-    """``picamcal ARGS`` in this process: its exit status, its non-empty stderr lines and its stdout."""
-
-    def run(*args: object) -> tuple[int, list[str], str]:
-        monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main's global settings are put back
-        with pytest.raises(SystemExit) as exit:
-            main([str(arg) for arg in args])
-        captured = capfd.readouterr()
-        return exit.value.code, [line for line in captured.err.splitlines() if line.strip()], captured.out
-
-    return run
-
-
-def one_error(status: int, lines: list[str]) -> str:
-    """The one error line of a refused command (exit status 2), without its prefix."""
-    assert status == 2 and len(lines) == 1, lines
-    assert lines[0].startswith("picamcal: error: "), lines
-    return lines[0].removeprefix("picamcal: error: ")
 
 
 def add(viewer: Any, layers: list[Any]) -> list[Any]:

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from PIL import ImageGrab
 
+import napari_support
 from picamcal import load_calibration
 from picamcal.acquire.acquisition import acquire, open_rig
 from picamcal.acquire.base import IlluminatorError
@@ -36,31 +37,8 @@ ARGS = ("--camera", "sim", "--illuminator", "screen", "--size", "320x240", "--se
 
 
 def start_xvfb(depth: int = 24) -> tuple[subprocess.Popen, str]:
-    """Xvfb on a display number it finds free itself (-displayfd), its root window white (-wr), and its name."""
-    read, write = os.pipe()
-    server = subprocess.Popen(
-        [
-            "Xvfb",
-            "-displayfd",
-            str(write),
-            "-screen",
-            "0",
-            f"{SCREEN[0]}x{SCREEN[1]}x{depth}",
-            "-wr",
-            "-nolisten",
-            "tcp",
-        ],
-        pass_fds=(write,),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    os.close(write)
-    with os.fdopen(read) as announced:
-        number = announced.readline().strip()  # written once the server accepts connections
-    if not number:
-        server.kill()
-        pytest.fail(f"Xvfb did not start (exit status {server.wait()})")
-    return server, f":{number}"
+    """Xvfb with its root window white (-wr), and its display's name."""
+    return napari_support.start_xvfb((*SCREEN, depth), "-wr")
 
 
 @pytest.fixture(scope="module")
