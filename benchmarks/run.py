@@ -5,8 +5,8 @@ Usage: python3 benchmarks/run.py [--sensor imx219] [--repeats 5] [--only NAME ..
 It times calibration, raw reading, the matrix inversion and the wheel search itself, then runs the other
 benchmarks of this folder one after the other: start-up (bench_startup), single commands beside their work
 (bench_commands), correction (bench_correct), batches
-file to file (bench_batch), live unmixing (bench_live) and the virtual camera's frame rate (bench_virtualcam);
-`--only calibration startup ...` picks some. With
+file to file (bench_batch), every output format beside its encoder alone (bench_outputs), live unmixing
+(bench_live) and the virtual camera's frame rate (bench_virtualcam); `--only calibration startup ...` picks some. With
 `--write-docs` it also writes everything it printed into docs/benchmarks.md, the documentation site's Benchmarks
 page, between the markers of its "The figures" section, so that the page's figures are those of one run. The whole
 run takes about 13 minutes on a 2-core machine.
@@ -189,6 +189,7 @@ SUITES = {
     "commands": "bench_commands",
     "correct": "bench_correct",
     "batch": "bench_batch",
+    "outputs": "bench_outputs",
     "live": "bench_live",
     "virtualcam": "bench_virtualcam",
     "napari": "bench_napari",

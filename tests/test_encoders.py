@@ -12,6 +12,7 @@ import json
 import shutil
 import struct
 import subprocess
+import threading
 import zlib
 from pathlib import Path
 
@@ -173,6 +174,15 @@ def test_png_is_written_to_an_open_file_as_to_a_path(tmp_path):
     write_png(buffer, codes, description=DESCRIPTION)
     write_png(tmp_path / "p.png", codes, description=DESCRIPTION)
     assert buffer.getvalue() == (tmp_path / "p.png").read_bytes() == encode_png(codes, description=DESCRIPTION)
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full (a device that is always full)")
+def test_a_png_write_that_fails_raises_and_leaves_no_thread_behind():
+    codes = codes_of((1200, 640), np.uint8, seed=9)  # several strips, deflated on 2 threads
+    before = {thread.name for thread in threading.enumerate()}
+    with pytest.raises(OSError, match="No space left on device"):
+        write_png("/dev/full", codes, threads=2)
+    assert {thread.name for thread in threading.enumerate()} <= before
 
 
 # ----------------------------------------------------------------------------------------------------------- JPEG

@@ -11,12 +11,12 @@ PNG (ISO/IEC 15948)
     stream, as pigz does: each strip's raw deflate data ends on a byte boundary (``Z_FULL_FLUSH``, the last
     ``Z_FINISH``), the stream has one zlib header, and its Adler-32 is that of the whole filtered data, combined
     from the strips'. The strips depend on the image's size alone, so the file is the same bytes whatever the
-    number of threads. Compared with Pillow's PNG at level 1 (adaptive filters, the default strategy) on a
-    corrected 8 MP frame, the files are 18 % smaller on a noisy one and 2 % larger on a noiseless one, and one
-    thread writes them about twice as fast (benchmarks/bench_outputs.py).
+    number of threads. On a corrected 8 MP frame the files are smaller than Pillow's at level 1 (adaptive
+    filters, the default strategy: 18 % smaller with the simulator's noise, 9 % without) and imagecodecs' 16-bit
+    ones (3 %), and one thread writes them with less than half Pillow's CPU time (benchmarks/bench_outputs.py).
 JPEG (ISO/IEC 10918-1, JFIF, EXIF 2.32)
     Baseline, 4:4:4 (no chroma subsampling), through imagecodecs' libjpeg-turbo when it is installed, else
-    Pillow's: the same encoder, quantisation tables and Huffman tables, so the same file. The EXIF IFD0 holds the
+    Pillow's: the same segments, quantisation and Huffman tables, so the same pixels. The EXIF IFD0 holds the
     tags EXIF 2.32 requires of a JPEG (resolution 72 dpi, ``YCbCrPositioning`` centred), which ``exiftool
     -validate`` checks, besides ``ImageDescription`` and ``Software``.
 
@@ -45,7 +45,7 @@ import numpy as np
 from ..kernels import kernel_threads
 from .provenance import RECORD_KEY, SOFTWARE
 
-#: zlib's level for PNG: 1, the fastest. With the run-length strategy the level hardly matters.
+#: zlib's level for PNG: 1, the fastest (with the run-length strategy, zlib's deflate is the same at any level).
 PNG_ZLIB_LEVEL = 1
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -98,8 +98,11 @@ def parallel_map(fn: Callable[[int], _T], count: int, threads: int | None = None
     if threads == 1 or count <= 1:
         yield from (fn(index) for index in range(count))
         return
-    with ThreadPoolExecutor(min(threads, count), thread_name_prefix="picamcal-encode") as pool:
+    pool = ThreadPoolExecutor(min(threads, count), thread_name_prefix="picamcal-encode")
+    try:
         yield from pool.map(fn, range(count))
+    finally:  # also when the caller stops early (a failed write): the calls not yet started are dropped
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def resolve_threads(threads: int | None) -> int:
@@ -245,11 +248,11 @@ def _png_stream(
         data = b"".join(
             (
                 head,
-                compressor.compress(filtered),
+                compressor.compress(filtered.data),
                 compressor.flush(zlib.Z_FINISH if index == last else zlib.Z_FULL_FLUSH),
             )
         )
-        return data, zlib.crc32(data, zlib.crc32(b"IDAT")), zlib.adler32(filtered), filtered.size
+        return data, zlib.crc32(data, zlib.crc32(b"IDAT")), zlib.adler32(filtered.data), filtered.size
 
     adler = 1  # of nothing
     for index, (data, crc, strip_adler, length) in enumerate(parallel_map(deflate, len(bounds), threads)):
@@ -375,10 +378,10 @@ def write_jpeg(
     """Write uint8 RGB codes (H, W, 3) as a baseline JPEG, 4:4:4, with its EXIF and ICC profile.
 
     Through imagecodecs' libjpeg-turbo when it is installed (it holds no copy of the image as Pillow does), else
-    Pillow's; the same file either way. The EXIF IFD0 holds ``ImageDescription`` (``description``: ASCII, as
-    :func:`json.dumps` writes), ``Software``, ``XResolution`` and ``YResolution`` (72), ``ResolutionUnit``
-    (inches) and ``YCbCrPositioning`` (centred), as ``exiftool -validate`` asks; the ICC profile is in APP2
-    segments.
+    Pillow's: the same segments and tables either way, so the same pixels. The EXIF IFD0 holds
+    ``ImageDescription`` (``description``: ASCII, as :func:`json.dumps` writes), ``Software``, ``XResolution``
+    and ``YResolution`` (72), ``ResolutionUnit`` (inches) and ``YCbCrPositioning`` (centred), as ``exiftool
+    -validate`` asks; the ICC profile is in APP2 segments.
 
     Parameters
     ----------
@@ -438,7 +441,7 @@ def _icc_segments(profile: bytes) -> list[bytes]:
     return [_jpeg_segment(0xE2, b"ICC_PROFILE\x00" + bytes((k, len(parts))) + part) for k, part in enumerate(parts, 1)]
 
 
-def _libjpeg_turbo() -> Callable[..., bytes] | None:
+def _libjpeg_turbo() -> Callable[..., bytes | bytearray] | None:
     """imagecodecs' JPEG encoder when imagecodecs is installed with it, else None (Pillow's is used)."""
     try:
         import imagecodecs
@@ -446,7 +449,7 @@ def _libjpeg_turbo() -> Callable[..., bytes] | None:
         return None
     if not getattr(imagecodecs, "JPEG8", None) or not imagecodecs.JPEG8.available:
         return None
-    return imagecodecs.jpeg8_encode  # type: ignore[no-any-return]
+    return imagecodecs.jpeg8_encode
 
 
 __all__ = [
