@@ -158,40 +158,54 @@ def test_the_compiled_pisp_compressor_writes_the_numpy_paths_words(monkeypatch):
 
 
 def test_the_compiled_kernels_write_the_numpy_paths_bytes(monkeypatch):
+    # The compiled render goes from the raw frame straight to the output's pixels, row block by row block (a block's
+    # first row made afresh, the rows that repeat it copied); numpy develops the sampled quads and then writes them.
+    # A stock tuning's lens shading makes each site's gains differ, so a site or quad taken for another shows.
     pytest.importorskip("numba")
     from picamcal.export.isp import SensorMode
+    from picamcal.export.tuning import load_tuning, stock_tuning_path
     from picamcal.raw.picamera2 import pisp
     from picamcal.virtualcam import isp
 
-    frame = np.random.default_rng(5).integers(0, 4096, (48, 70)).astype(np.uint16)
+    frame = np.random.default_rng(5).integers(0, 4096, (96, 140)).astype(np.uint16)
     frame[:, :20] //= 40  # dark columns, for the finer PiSP quantisation modes
     ccm = np.array([[1.6, -0.4, -0.2], [-0.3, 1.5, -0.2], [0.0, -0.5, 1.5]])
-    outputs = [("XRGB8888", 100, 60, 400), ("BGR888", 20, 12, 64), ("RGB161616", 33, 21, 208), ("YUV420", 32, 24, 32)]
-    raws = [("SGRBG12_CSI2P", 112), ("SGRBG10_CSI2P", 96), ("GRBG_PISP_COMP1", 80)]
+    outputs = [
+        ("XRGB8888", 200, 150, 832),  # larger than the quads: rows and columns repeated, over two row blocks
+        ("XBGR8888", 48, 30, 256),
+        ("BGR888", 20, 12, 64),
+        ("RGB888", 180, 140, 576),
+        ("RGB161616", 33, 21, 208),
+        ("YUV420", 32, 24, 32),
+        ("NV21", 150, 130, 160),
+    ]
+    raws = [("SGRBG12_CSI2P", 224), ("SGRBG10_CSI2P", 192), ("GRBG_PISP_COMP1", 192)]
+    tuning = load_tuning(stock_tuning_path("imx477", "pisp"))
 
     def run() -> list[np.ndarray]:
-        stage = isp.Isp({}, SensorMode.full(70, 48), "GRBG", 12, 4096, None)
-        planes = [plane.copy() for plane in stage.linear_planes(frame, 5000.0)]
-        written = [*planes]
+        stage = isp.Isp(tuning, SensorMode.full(140, 96), "GRBG", 12, 4096, None)
+        written = []
         for name, width, height, stride in outputs:
-            rows, cols = isp.sample_indices((4, 2, 60, 44), width, height, (35, 24))
+            rows, cols = isp.sample_indices((8, 4, 120, 88), width, height, (70, 48))
             plan = isp.OutputPlan(isp.Layout(name, width, height, stride, 2 * stride * height), None, rows, cols)
-            dest = np.zeros(2 * stride * height, dtype=np.uint8)
-            stage.render(planes, plan, (1.8, 1.4), 1.2, ccm, dest)
+            dest = np.full(2 * stride * height, 7, dtype=np.uint8)
+            stage.render(frame, 5000.0, plan, (1.8, 1.4), 1.2, ccm, dest)
             written.append(dest)
         for name, stride in raws:
-            dest = np.full((48, stride), 7, dtype=np.uint8)
-            isp.encode_raw(frame >> (2 if "10" in name else 0), isp.Layout(name, 70, 48, stride, 48 * stride),
+            dest = np.full((96, stride), 7, dtype=np.uint8)
+            isp.encode_raw(frame >> (2 if "10" in name else 0), isp.Layout(name, 140, 96, stride, 96 * stride),
                            10 if "10" in name else 12, dest)  # fmt: skip
             written.append(dest)
         return written
 
     compiled = run()
-    for getter in ("_compiled_planes", "_compiled_render", "_compiled_pack"):
+    for getter in ("_compiled_render", "_compiled_pack"):
         monkeypatch.setattr(isp, getter, lambda: None)
     monkeypatch.setattr(pisp, "_compiled_words", lambda: None)
     for fast, slow in zip(compiled, run(), strict=True):
         np.testing.assert_array_equal(fast, slow)
+    pixels = compiled[0].reshape(-1, 832)[:150, :800].view("<u4")
+    assert len(np.unique(pixels)) > 1000 and np.all(pixels >> 24 == 255)  # varied colours; the X bytes 255
 
 
 def test_the_statistics_from_the_raw_frame_are_those_of_the_isps_planes():

@@ -333,7 +333,7 @@ class CameraData:
         compressor's compilation), so that frames come at the mode's rate from the start, as on a Pi."""
         mode = config.sensor_mode
         assert mode is not None and self.isp is not None
-        self.sensor.capture(mode, 1000.0, 1.0, 0, noise=False)
+        self.sensor.capture(mode, 1000.0, 1.0, 0, *self.sensor_flips, noise=False)  # the response as read out
         self.isp.lens_shading(self.ipa.ct)
         formats = [str(cfg.pixel_format) for cfg in config]
         warm_up(any(f.endswith("_CSI2P") for f in formats), any(f.endswith("_PISP_COMP1") for f in formats))
@@ -615,11 +615,10 @@ class CameraData:
         isp = self.isp
         assert isp is not None
         request = frame.request
-        planes = isp.linear_planes(frame.raw, frame.ct)
         for stream, plan in frame.plans:
             if stream in request._buffers:
                 dest = self._buffer_bytes(request, stream)
-                isp.render(planes, plan, frame.gains, frame.digital_gain, frame.ccm, dest)
+                isp.render(frame.raw, frame.ct, plan, frame.gains, frame.digital_gain, frame.ccm, dest)
                 del dest  # the mapping's export, before the next
         for stream, buffer in request._buffers.items():
             assert stream._configuration is not None

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import functools
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -118,16 +117,41 @@ def _resized(image: np.ndarray | None, width: int, height: int) -> np.ndarray:
     return image[ys][:, xs]
 
 
-@dataclass(frozen=True)
 class _Rendered:
-    """One mode's noiseless response per unit exposure, its digitisation and its bank of unit normal deviates."""
+    """One mode's noiseless response per unit exposure, its digitisation and its bank of unit normal deviates.
 
-    response: np.ndarray
-    black: float
-    white: int
-    electrons_per_dn: float
-    read_noise: float
-    bank: np.ndarray
+    The response is kept as the sensor's flips read it out (:meth:`oriented`), so that a frame is read in memory
+    order: one copy, turned when the flips change (mirroring is exact).
+    """
+
+    def __init__(
+        self,
+        response: np.ndarray,
+        black: float,
+        white: int,
+        electrons_per_dn: float,
+        read_noise: float,
+        bank: np.ndarray,
+    ) -> None:
+        self.black, self.white = black, white
+        self.electrons_per_dn, self.read_noise = electrons_per_dn, read_noise
+        self.bank = bank
+        self.size = response.size
+        self._oriented: tuple[tuple[bool, bool], np.ndarray] = ((False, False), response)
+        self._lock = threading.Lock()
+
+    def oriented(self, hflip: bool, vflip: bool) -> np.ndarray:
+        """The response as read out with these flips (float32, C order)."""
+        flips, response = self._oriented
+        if flips == (hflip, vflip):
+            return response
+        with self._lock:
+            flips, response = self._oriented
+            if flips != (hflip, vflip):
+                turned = response[:: -1 if vflip != flips[1] else 1, :: -1 if hflip != flips[0] else 1]
+                response = np.ascontiguousarray(turned)
+                self._oriented = ((hflip, vflip), response)
+            return response
 
 
 #: The modes rendered in this process, shared by the sensors (picamera2 drops its camera manager, and with it the
@@ -226,30 +250,27 @@ class VirtualSensor:
             Shot and read noise.
         """
         rendered = self._rendered(mode)
+        response = rendered.oriented(hflip, vflip)
         fraction = np.float32(self.brightness * exposure_us / REFERENCE_EXPOSURE_US * gain)
         shot = np.float32(gain / rendered.electrons_per_dn)
         read = np.float32((rendered.read_noise * gain) ** 2)
         offset = 0
         if noise:
             rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(sequence,))))
-            offset = int(rng.integers(0, rendered.response.size + 1))
+            offset = int(rng.integers(0, rendered.size + 1))
         kernel = _compiled_readout()
         if kernel is not None:
-            response = rendered.response
             height, width = response.shape
             frame = np.empty(response.shape, dtype=np.uint16)
             black, white = np.float32(rendered.black), np.float32(rendered.white)
 
-            def read_out(start: int, stop: int) -> None:  # rows start..stop of the frame, from their source rows
-                first = height - stop if vflip else start
-                source = response[first : first + stop - start]
-                at = offset + first * width
-                rows = frame[start:stop]
-                kernel(source, rendered.bank, at, fraction, shot, read, black, white, noise, hflip, vflip, rows)
+            def read_out(start: int, stop: int) -> None:  # rows start..stop, their deviates from the bank in order
+                deviates = rendered.bank[offset + start * width : offset + stop * width]
+                kernel(response[start:stop], deviates, fraction, shot, read, black, white, noise, frame[start:stop])
 
             in_row_blocks(read_out, height)
             return frame
-        signal = rendered.response * fraction
+        signal = response * fraction
         if noise:
             spread = signal * shot
             spread += read
@@ -259,39 +280,32 @@ class VirtualSensor:
         signal += np.float32(rendered.black)
         np.rint(signal, out=signal)
         np.clip(signal, 0, rendered.white, out=signal)
-        frame = signal.astype(np.uint16)
-        if vflip:
-            frame = frame[::-1]
-        if hflip:
-            frame = frame[:, ::-1]
-        return np.ascontiguousarray(frame)
+        return signal.astype(np.uint16)
 
 
 def _readout_loop(  # pragma: no cover - compiled by numba
     response: np.ndarray,
-    bank: np.ndarray,
-    offset: int,
+    deviates: np.ndarray,
     fraction: np.float32,
     shot: np.float32,
     read: np.float32,
     black: np.float32,
     white: np.float32,
     noise: bool,
-    hflip: bool,
-    vflip: bool,
     out: np.ndarray,
 ) -> None:
-    """:meth:`VirtualSensor.capture` in one pass (for numba): the same float32 arithmetic, pixel by pixel."""
+    """:meth:`VirtualSensor.capture` in one pass (for numba): the same float32 arithmetic, pixel by pixel, in memory
+    order (the compiler vectorises it)."""
     height, width = response.shape
+    zero = np.float32(0.0)
     for y in range(height):
-        source_y = height - 1 - y if vflip else y
+        source, dest, normal = response[y], out[y], deviates[y * width : (y + 1) * width]
         for x in range(width):
-            source_x = width - 1 - x if hflip else x
-            value = response[source_y, source_x] * fraction
+            value = source[x] * fraction
             if noise:
-                value += np.sqrt(value * shot + read) * bank[offset + source_y * width + source_x]
+                value += np.sqrt(value * shot + read) * normal[x]
             value = np.rint(value + black)
-            out[y, x] = min(max(value, np.float32(0.0)), white)
+            dest[x] = min(max(value, zero), white)
 
 
 @functools.cache

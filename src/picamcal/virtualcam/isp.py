@@ -117,13 +117,6 @@ class OutputPlan:
         self.unique_cols, self.col_index = np.unique(self.cols, return_inverse=True)
         self.repeats = len(self.unique_rows) < len(self.rows) or len(self.unique_cols) < len(self.cols)
 
-    def take(self, plane: np.ndarray) -> np.ndarray:
-        """The plane's samples at the distinct rows and columns (a copy)."""
-        rows, cols = self.unique_rows, self.unique_cols
-        if rows[-1] - rows[0] + 1 == len(rows) and cols[-1] - cols[0] + 1 == len(cols):
-            return plane[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1].copy()
-        return plane[rows][:, cols]
-
 
 def sample_indices(crop: tuple[int, int, int, int], width: int, height: int, quads: tuple[int, int]) -> tuple:
     """Quad rows and columns (into the mode's half-size RGB) of an output of ``width`` x ``height`` showing ``crop``
@@ -178,7 +171,6 @@ class Isp:
         # (colour temperature bucket, gains) in one attribute: the sensor's and the ISP's stages, in threads of their
         # own, never see one's bucket with the other's gains.
         self._lsc: tuple[float, np.ndarray] | None = None
-        self._stack: np.ndarray | None = None
         self.has_alsc = any("rpi.alsc" in a for a in tuning.get("algorithms", []))
 
     def lens_shading(self, ct: float) -> np.ndarray:
@@ -201,20 +193,9 @@ class Isp:
         return gains
 
     def linear_planes(self, frame: np.ndarray, ct: float) -> list[np.ndarray]:
-        """The four Bayer sites of a raw frame, black subtracted, lens shading applied, on 0..1 (quad size).
-
-        With numba the planes are views of one buffer the next call overwrites (the ISP stage's use).
-        """
+        """The four Bayer sites of a raw frame, black subtracted, lens shading applied, on 0..1 (quad size): what
+        :meth:`render` samples (the compiled render takes the quads it needs straight from the raw frame)."""
         gains = self.lens_shading(ct)
-        scale = np.float32(1.0 / (self.white - self.black))
-        kernel = _compiled_planes()
-        if kernel is not None:
-            if self._stack is None or self._stack.shape != gains.shape:  # reused: fresh pages cost more than the work
-                self._stack = np.empty(gains.shape, dtype=np.float32)
-            stack, black = self._stack, np.float32(self.black)
-            quads = gains.shape[1]  # rows of quads: two rows of the frame each
-            in_row_blocks(lambda a, b: kernel(frame[2 * a : 2 * b], black, gains[:, a:b], scale, stack[:, a:b]), quads)
-            return list(stack)
         return [self._site_values(frame, site, gains) for site in range(4)]
 
     def _site_values(self, frame: np.ndarray, site: int, gains: np.ndarray, step: int = 1) -> np.ndarray:
@@ -246,54 +227,78 @@ class Isp:
 
     def render(
         self,
-        planes: list[np.ndarray],
+        frame: np.ndarray,
+        ct: float,
         plan: OutputPlan,
         gains: tuple[float, float],
         digital_gain: float,
         ccm: np.ndarray,
         dest: np.ndarray,
     ) -> None:
-        """Write one processed stream into ``dest`` (uint8, the buffer's bytes)."""
+        """Write one processed stream of a raw frame into ``dest`` (uint8, the buffer's bytes).
+
+        Only the quads the output samples are developed (:meth:`linear_planes`' arithmetic at those quads). With
+        numba, each distinct output row is made once from the raw frame and written straight into the buffer at the
+        output's size (the rows that repeat it copied), with no frame-sized temporary between the stages.
+        """
         layout = plan.layout
         weights = (np.float32(gains[0] * digital_gain), np.float32(digital_gain), np.float32(gains[1] * digital_gain))
         green_sites = [s for s, c in enumerate(self.channels) if c == 1]
+        sites = (self.channels.index(0), green_sites[0], green_sites[-1], self.channels.index(2))
         matrix = ccm.astype(np.float32)
-        kernels = _compiled_render()
-        if kernels is not None:
-            red, blue = self.channels.index(0), self.channels.index(2)
-            encoded = np.empty((len(plan.unique_rows), len(plan.unique_cols), 3), dtype=np.uint8)
-            factors = np.array(weights, np.float32)
-
-            def encode(a: int, b: int) -> None:
-                kernels[0](
-                    planes[red], planes[green_sites[0]], planes[green_sites[-1]], planes[blue], plan.unique_rows[a:b],
-                    plan.unique_cols, factors, matrix, self.gamma, encoded[a:b],
-                )  # fmt: skip
-
-            in_row_blocks(encode, len(encoded))
-            if _write_expanded(encoded, layout, plan, dest, kernels[1]):
-                return
+        lsc = self.lens_shading(ct)
+        kernel = _compiled_render()
+        if kernel is None:
+            encoded = self._encode(frame, lsc, plan, weights, sites, matrix)
         else:
-            encoded = self._encode(planes, plan, weights, green_sites, matrix)
+            develop = functools.partial(
+                kernel, frame, np.float32(self.black), lsc, np.float32(1.0 / (self.white - self.black)),
+                np.array(sites, np.intp), plan.unique_rows,
+            )  # fmt: skip
+            factors = np.array(weights, np.float32)
+            direct = _direct_rows(layout, dest)
+            if direct is not None:
+                rows, order = direct
+                cols, index = plan.unique_cols, plan.col_index
+                in_row_blocks(
+                    lambda a, b: develop(
+                        plan.row_index[a:b], cols, index, factors, matrix, self.gamma, order, rows[a:b]
+                    ),
+                    layout.height,
+                )
+                return
+            encoded = np.empty((len(plan.unique_rows), len(plan.unique_cols), 3), dtype=np.uint8)
+            flat = encoded.reshape(len(encoded), -1)
+            distinct, rgb = np.arange(len(plan.unique_cols)), np.arange(3)
+            in_row_blocks(
+                lambda a, b: develop(
+                    np.arange(a, b), plan.unique_cols, distinct, factors, matrix, self.gamma, rgb, flat[a:b]
+                ),
+                len(encoded),
+            )
         if plan.repeats:
             write_output(encoded, layout, plan.colour_space, dest, (plan.row_index, plan.col_index))
         else:
             write_output(encoded, layout, plan.colour_space, dest)
 
     def _encode(
-        self, planes: list[np.ndarray], plan: OutputPlan, weights: tuple, green_sites: list[int], matrix: np.ndarray
+        self,
+        frame: np.ndarray,
+        lsc: np.ndarray,
+        plan: OutputPlan,
+        weights: tuple,
+        sites: tuple[int, int, int, int],
+        matrix: np.ndarray,
     ) -> np.ndarray:
         """The gamma-encoded RGB at the plan's distinct rows and columns (numpy)."""
-        channels = []
+        rows, cols = plan.unique_rows, plan.unique_cols
+        red, green, green2, blue = (self._site_samples(frame, site, lsc, rows, cols) for site in sites)
+        green += green2
+        green *= np.float32(0.5)
+        channels = [red, green, blue]
         for channel in range(3):
-            sites = green_sites if channel == 1 else [self.channels.index(channel)]
-            samples = plan.take(planes[sites[0]])
-            if len(sites) == 2:
-                samples += plan.take(planes[sites[1]])
-                samples *= np.float32(0.5)
-            samples *= weights[channel]
-            channels.append(samples)
-        encoded = np.empty((*channels[0].shape, 3), dtype=np.uint8)
+            channels[channel] *= weights[channel]
+        encoded = np.empty((*red.shape, 3), dtype=np.uint8)
         top = np.float32(len(self.gamma) - 1)
         for out in range(3):
             mixed = channels[0] * matrix[out, 0]
@@ -303,6 +308,17 @@ class Isp:
             mixed *= top
             encoded[..., out] = self.gamma[mixed.astype(np.intp)]
         return encoded
+
+    def _site_samples(
+        self, frame: np.ndarray, site: int, gains: np.ndarray, rows: np.ndarray, cols: np.ndarray
+    ) -> np.ndarray:
+        """One Bayer site's values at the quads ``rows`` x ``cols``: :meth:`_site_values` there (numpy)."""
+        sy, sx = divmod(site, 2)
+        values = frame[2 * rows + sy][:, 2 * cols + sx].astype(np.float32)
+        values -= np.float32(self.black)
+        values *= gains[site][rows][:, cols]
+        values *= np.float32(1.0 / (self.white - self.black))
+        return values
 
 
 def write_output(
@@ -380,70 +396,110 @@ def _ycbcr(rgb: np.ndarray, colour_space: Any) -> tuple[np.ndarray, np.ndarray, 
     return np.clip(np.rint(y8), 0, 255).astype(np.uint8), cb, cr
 
 
-def _write_expanded(encoded: np.ndarray, layout: Layout, plan: OutputPlan, dest: np.ndarray, kernel: Any) -> bool:
-    """Write an RGB format's pixels with the compiled kernel (False for the Y'CbCr formats, left to numpy)."""
-    name, height, stride = layout.format, layout.height, layout.stride
+def _direct_rows(layout: Layout, dest: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rows of an RGB format's buffer as the compiled render writes them, and the channel of each byte of a
+    pixel: 32-bit words for the formats of 4 bytes a pixel, 16-bit values for the 48-bit ones, else bytes (None for
+    the Y'CbCr formats, written by numpy)."""
+    name, width, height, stride = layout.format, layout.width, layout.height, layout.stride
     rows = dest.reshape(-1)[: stride * height].reshape(height, stride)
     if "161616" in name:
-        rows, channels = rows.view("<u2"), 3
-    elif name in ("RGB888", "BGR888", "XRGB8888", "XBGR8888"):
-        channels = 4 if name.startswith("X") else 3
+        rows = rows[:, : 6 * width].view("<u2")
+    elif name in ("XRGB8888", "XBGR8888"):
+        rows = rows[:, : 4 * width].view("<u4")
+    elif name in ("RGB888", "BGR888"):
+        rows = rows[:, : 3 * width]
     else:
-        return False
-    order = np.array([2, 1, 0] if name.startswith(("RGB", "XRGB")) else [0, 1, 2], dtype=np.intp)
-    in_row_blocks(lambda a, b: kernel(encoded, plan.row_index[a:b], plan.col_index, order, channels, rows[a:b]), height)
-    return True
+        return None
+    return rows, np.array([2, 1, 0] if name.startswith(("RGB", "XRGB")) else [0, 1, 2], dtype=np.intp)
 
 
 def _render_loop(  # pragma: no cover - compiled by numba
-    red: np.ndarray,
-    green: np.ndarray,
-    green2: np.ndarray,
-    blue: np.ndarray,
+    frame: np.ndarray,
+    black: np.float32,
+    lsc: np.ndarray,
+    scale: np.float32,
+    sites: np.ndarray,
     rows: np.ndarray,
+    row_index: np.ndarray,
     cols: np.ndarray,
+    col_index: np.ndarray,
     weights: np.ndarray,
     matrix: np.ndarray,
     gamma: np.ndarray,
-    encoded: np.ndarray,
+    order: np.ndarray,
+    out: np.ndarray,
 ) -> None:
-    """:meth:`Isp._encode` row by row (for numba): the same float32 arithmetic. Each row's samples are gathered
-    first and each output channel then mixed in a loop of its own, which the compiler vectorises (twice as fast as
-    one loop doing everything per sample)."""
+    """:meth:`Isp.render` of some output rows (for numba): :meth:`Isp._encode`'s float32 arithmetic, from the raw
+    frame to the output's pixels.
+
+    Output row ``i`` shows quad row ``rows[row_index[i]]``; pixel ``j`` of it quad column ``cols[col_index[j]]``;
+    byte (or 16-bit value) ``k`` of a pixel is channel ``order[k]``. ``out`` holds the rows as 32-bit words (a pixel
+    of 4 bytes, the fourth 255), 16-bit values (three a pixel, the 8-bit codes times 257) or bytes (three a pixel).
+    A row that shows the same quads as the one before is copied. Each distinct row's samples are developed in loops
+    of their own, which the compiler vectorises, and then gathered into the pixels.
+    """
     top = np.float32(len(gamma) - 1)
     zero, one, half = np.float32(0.0), np.float32(1.0), np.float32(0.5)
-    n = len(cols)
+    n, width = len(cols), len(col_index)
     r, g, b = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
-    index = np.empty(n, np.int32)
-    for i in range(len(rows)):
-        y = rows[i]
-        row_r, row_g, row_g2, row_b, out = red[y], green[y], green2[y], blue[y], encoded[i]
+    index = np.empty((3, n), np.int32)
+    words = np.empty(n, np.uint32)
+    shift_r = shift_g = shift_b = np.uint32(0)  # of each channel's byte in a 32-bit pixel
+    for k in range(3):
+        if order[k] == 0:
+            shift_r = np.uint32(8 * k)
+        elif order[k] == 1:
+            shift_g = np.uint32(8 * k)
+        else:
+            shift_b = np.uint32(8 * k)
+    weight_r, weight_g, weight_b = weights[0], weights[1], weights[2]
+    red_y, red_x = divmod(sites[0], 2)
+    green_y, green_x = divmod(sites[1], 2)
+    green2_y, green2_x = divmod(sites[2], 2)
+    blue_y, blue_x = divmod(sites[3], 2)
+    last = -1
+    for i in range(len(row_index)):
+        line = out[i]
+        if row_index[i] == last:
+            line[:] = out[i - 1]
+            continue
+        last = row_index[i]
+        y = rows[last]
+        row_r, row_g, row_g2, row_b = (
+            frame[2 * y + red_y],
+            frame[2 * y + green_y],
+            frame[2 * y + green2_y],
+            frame[2 * y + blue_y],
+        )
+        gain_r, gain_g, gain_g2, gain_b = lsc[sites[0], y], lsc[sites[1], y], lsc[sites[2], y], lsc[sites[3], y]
         for j in range(n):
             x = cols[j]
-            r[j] = row_r[x] * weights[0]
-            g[j] = (row_g[x] + row_g2[x]) * half * weights[1]
-            b[j] = row_b[x] * weights[2]
+            r[j] = (np.float32(row_r[2 * x + red_x]) - black) * gain_r[x] * scale * weight_r
+            green = (np.float32(row_g[2 * x + green_x]) - black) * gain_g[x] * scale
+            green2 = (np.float32(row_g2[2 * x + green2_x]) - black) * gain_g2[x] * scale
+            g[j] = (green + green2) * half * weight_g
+            b[j] = (np.float32(row_b[2 * x + blue_x]) - black) * gain_b[x] * scale * weight_b
         for k in range(3):
             m0, m1, m2 = matrix[k, 0], matrix[k, 1], matrix[k, 2]
+            codes = index[k]
             for j in range(n):
-                index[j] = np.int32(min(max(r[j] * m0 + g[j] * m1 + b[j] * m2, zero), one) * top)
+                codes[j] = np.int32(min(max(r[j] * m0 + g[j] * m1 + b[j] * m2, zero), one) * top)
+        if out.itemsize == 4:
             for j in range(n):
-                out[j, k] = gamma[index[j]]
-
-
-def _planes_loop(  # pragma: no cover - compiled by numba
-    frame: np.ndarray, black: np.float32, gains: np.ndarray, scale: np.float32, out: np.ndarray
-) -> None:
-    """:meth:`Isp.linear_planes` in one pass (for numba): the same float32 arithmetic, quad by quad."""
-    _, height, width = out.shape
-    for y in range(height):
-        for sy in range(2):
-            row = frame[2 * y + sy]
-            for sx in range(2):
-                site = 2 * sy + sx
-                plane, gain = out[site, y], gains[site, y]
-                for x in range(width):
-                    plane[x] = (np.float32(row[2 * x + sx]) - black) * gain[x] * scale
+                words[j] = (
+                    (np.uint32(gamma[index[0, j]]) << shift_r)
+                    | (np.uint32(gamma[index[1, j]]) << shift_g)
+                    | (np.uint32(gamma[index[2, j]]) << shift_b)
+                    | np.uint32(0xFF000000)
+                )
+            for j in range(width):
+                line[j] = words[col_index[j]]
+        else:
+            scaled = 257 if out.itemsize == 2 else 1
+            for j in range(width):
+                x = col_index[j]
+                for k in range(3):
+                    line[3 * j + k] = gamma[index[order[k], x]] * scaled
 
 
 def _pack_loop(frame: np.ndarray, bits: int, out: np.ndarray) -> None:  # pragma: no cover - compiled by numba
@@ -466,40 +522,25 @@ def _pack_loop(frame: np.ndarray, bits: int, out: np.ndarray) -> None:  # pragma
             dest[i] = 0
 
 
-def _expand_loop(  # pragma: no cover - compiled by numba
-    encoded: np.ndarray, rows: np.ndarray, cols: np.ndarray, order: np.ndarray, channels: int, out: np.ndarray
-) -> None:
-    """Each output pixel from its sample into the rows ``out``: channels in ``order``, 16-bit outputs scaled by
-    257, X bytes 255."""
-    scale = 257 if out.itemsize == 2 else 1
-    for i in range(len(rows)):
-        y, line = rows[i], out[i]
-        for j in range(len(cols)):
-            x, at = cols[j], j * channels
-            for k in range(3):
-                line[at + k] = encoded[y, x, order[k]] * scale
-            if channels == 4:
-                line[at + 3] = 255
-
-
 def warm_up(packed: bool, compressed: bool) -> None:
     """Compile the kernels a configuration uses on tiny inputs of the same types, so that its first frame does not
     wait for numba (a no-op without numba; numba's disk cache makes it quick after the first time)."""
-    planes_kernel = _compiled_planes()
-    if planes_kernel is None:
+    render = _compiled_render()
+    if render is None:
         return
     frame = np.zeros((2, 16), dtype=np.uint16)
-    stack = np.ones((4, 1, 8), dtype=np.float32)
-    planes_kernel(frame, np.float32(0.0), stack, np.float32(1.0), stack)
-    kernels = _compiled_render()
-    assert kernels is not None
-    render, expand = kernels
-    index, encoded = np.zeros(1, dtype=np.intp), np.zeros((1, 1, 3), dtype=np.uint8)
+    lsc = np.ones((4, 1, 8), dtype=np.float32)
+    index, sites = np.zeros(1, dtype=np.intp), np.arange(4, dtype=np.intp)
     weights, matrix = np.ones(3, dtype=np.float32), np.eye(3, dtype=np.float32)
-    render(stack[0], stack[1], stack[2], stack[3], index, index, weights, matrix, np.zeros(2, np.uint8), encoded)
-    order = np.arange(3, dtype=np.intp)
-    for dtype in (np.uint8, np.uint16):
-        expand(encoded, index, index, order, 3, np.zeros((1, 8), dtype=dtype))
+    for dtype in (np.uint8, np.uint16, np.uint32):
+        render(
+            frame, np.float32(0.0), lsc, np.float32(1.0), sites, index, index, index, index, weights, matrix,
+            np.zeros(2, np.uint8), sites[:3], np.zeros((1, 6), dtype=dtype)[:, :3],
+        )  # fmt: skip
+    render(
+        frame, np.float32(0.0), lsc, np.float32(1.0), sites, index, index, index, index, weights, matrix,
+        np.zeros(2, np.uint8), sites[:3], np.zeros((1, 3), dtype=np.uint8),
+    )  # fmt: skip
     if packed:
         _compiled_pack()(frame, 10, np.zeros((2, 32), dtype=np.uint8))
     if compressed:
@@ -507,26 +548,13 @@ def warm_up(packed: bool, compressed: bool) -> None:
 
 
 @functools.cache
-def _compiled_render() -> tuple[Any, Any] | None:
-    """:func:`_render_loop` and :func:`_expand_loop` compiled by numba (cached on disk), or None without numba."""
+def _compiled_render() -> Any:
+    """:func:`_render_loop` compiled by numba (cached on disk), or None without numba."""
     try:
         import numba
     except ImportError:
         return None
-    return (
-        numba.njit(cache=True, nogil=True, error_model="numpy")(_render_loop),
-        numba.njit(cache=True, nogil=True)(_expand_loop),
-    )
-
-
-@functools.cache
-def _compiled_planes() -> Any:
-    """:func:`_planes_loop` compiled by numba (cached on disk), or None without numba."""
-    try:
-        import numba
-    except ImportError:
-        return None
-    return numba.njit(cache=True, nogil=True)(_planes_loop)
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(_render_loop)
 
 
 @functools.cache
