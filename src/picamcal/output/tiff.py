@@ -70,7 +70,7 @@ def encode_uint16(rgb: np.ndarray, *, threads: int | None = None) -> np.ndarray:
     per_strip = max(1, -(-blocks // (4 * threads))) * block
     starts = range(0, height, per_strip)
     work = rgb.dtype if rgb.dtype in (np.float32, np.float64) else np.dtype(np.float64)
-    scale, top = work.type(UINT16_WHITE), work.type(_CODE_MAX)
+    scale, zero, top = work.type(UINT16_WHITE), work.type(0), work.type(_CODE_MAX)
 
     def convert(index: int) -> None:
         start = starts[index]
@@ -80,9 +80,9 @@ def encode_uint16(rgb: np.ndarray, *, threads: int | None = None) -> np.ndarray:
             tmp = values[: len(src)]
             with np.errstate(over="ignore"):  # the largest floats overflow to infinity, which clips as any other
                 np.multiply(src, scale, out=tmp, casting="unsafe")
-            np.fmax(tmp, 0, out=tmp)  # fmax and fmin take the number where the other is NaN: NaN gives 0
-            np.fmin(tmp, top, out=tmp)
+            np.clip(tmp, zero, top, out=tmp)  # a third of the time of fmax and fmin, but NaN stays NaN:
             np.rint(tmp, out=tmp)
+            np.copyto(tmp, zero, where=np.isnan(tmp))  # NaN gives 0
             np.copyto(dst, tmp, casting="unsafe")
 
     for _ in parallel_map(convert, len(starts), threads):
