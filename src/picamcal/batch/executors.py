@@ -34,6 +34,7 @@ from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.context import BaseContext
 from typing import Any
 
+from .._atomic import _process_alive
 from ..ckernel import c_available
 from ..errors import PicamcalError, PicamcalWarning
 from ..kernels import available_cores, numba_available, set_kernel_threads
@@ -55,6 +56,9 @@ from .worker import (
 MAX_CHUNK = 8
 #: How often a runner waiting for its tasks looks whether the batch was interrupted.
 _POLL_S = 0.1
+#: The longest a closing pool waits for its workers to end (killed, they end at once; a process stuck in the
+#: kernel may not, and its temporaries are then left for the next run to remove).
+_WORKERS_END_S = 10.0
 
 
 def _pool_context() -> BaseContext:
@@ -155,6 +159,7 @@ class Pool:
         self.context = _pool_context()
         self.stop = self.context.Event()  # the batch's interrupt, as the workers see it
         self.executor = self._executor()
+        self.pids: set[int] = set()  # every worker this pool started, replaced executors' too
 
     def _executor(self) -> ProcessPoolExecutor:
         threads = max(1, available_cores() // self.workers)
@@ -184,17 +189,26 @@ class Pool:
 
     def submit(self, chunk: list[Job]) -> Future[list[Outcome]]:
         try:
-            return self.executor.submit(process_jobs, self.settings, chunk)
+            future = self.executor.submit(process_jobs, self.settings, chunk)
         except BrokenProcessPool:
             self.executor.shutdown(wait=False, cancel_futures=True)
             self.executor = self._executor()
-            return self.executor.submit(process_jobs, self.settings, chunk)
+            future = self.executor.submit(process_jobs, self.settings, chunk)
+        self.pids.update(getattr(self.executor, "_processes", None) or {})  # started by submit
+        return future
 
     def finished(self, futures: list[Any], timeout: float) -> Iterable[Any]:
         return wait(futures, timeout=timeout, return_when=FIRST_COMPLETED).done
 
     def close(self) -> None:
+        """Shut the pool down and wait until its workers have ended: only then are their temporaries stale.
+
+        ``join`` alone does not say so under forkserver: a SIGTERM to the whole process group ends the forkserver
+        too, and a worker's join then returns at once, while the worker may still be ending (its files open)."""
         self.executor.shutdown(wait=True, cancel_futures=True)
+        deadline = time.monotonic() + _WORKERS_END_S
+        while any(map(_process_alive, self.pids)) and time.monotonic() < deadline:
+            time.sleep(0.01)
 
 
 def _init_worker(threads: int, stop: Any) -> None:
