@@ -150,6 +150,36 @@ def test_the_tone_tables_round_exactly():
     assert np.array_equal(curve.decode, linearise(np.arange(256, dtype=np.float32) / 255.0, "srgb"))
 
 
+@pytest.mark.skipif(not numba_available(), reason="numba is not installed")
+@pytest.mark.parametrize(("encoding", "one_step"), [("srgb", True), ("imx477", True), ("gamma:2.2", False)])
+def test_the_numba_kernel_rounds_exactly_at_every_edge_and_table_step(encoding, one_step):
+    # On the sRGB curve and the Pi's gamma curves one comparison settles each code (the kernel without a loop); on
+    # gamma 2.2, steeper than a code a table step near black, the kernel goes up edge by edge. Either way each value
+    # gets the code whose interval holds it: the values are the edges, the float32 on either side of them, and the
+    # table steps' bounds and their neighbours, taken through the kernel as one channel of a unit matrix.
+    from picamcal.live.stream import _one_step
+
+    tuning = load_tuning(stock_tuning_path("imx477", "pisp")) if encoding == "imx477" else None
+    curve = tone_curve_tables(None if tuning else encoding, tuning)
+    assert _one_step(curve) is one_step
+    top = curve.encode.size - 1
+    inner = curve.edges[1:-1]
+    steps = (np.arange(top + 2) / top).astype(np.float32)
+    values = np.concatenate(
+        [inner, np.nextafter(inner, -1), np.nextafter(inner, 2), steps, np.nextafter(steps, -1), np.nextafter(steps, 2)]
+    )
+    values = np.concatenate([values, np.linspace(-0.1, 1.1, 100 * 256 - values.size % 256, dtype=np.float32)])
+    height = -(-values.size // 256)
+    values = np.resize(values, height * 256).astype(np.float32)
+    field = np.zeros((height, 256, 9), np.float32)
+    field[..., 0] = values.reshape(height, 256)  # red out = value x decoded 255 (exactly 1.0)
+    assert curve.decode[255] == 1.0
+    frame = np.full((height, 256, 3), 255, np.uint8)
+    LiveUnmixer((256, height), STREAM_FORMATS["BGR888"], field, curve, "numba").apply(frame)
+    expected = np.clip(np.searchsorted(curve.edges, values, side="right") - 1, 0, 255)
+    np.testing.assert_array_equal(frame[..., 0].ravel(), expected)
+
+
 def test_srgb_stream_without_a_tuning_is_only_unmixed(setup):
     # No tuning: the stream is taken as flat already, sRGB encoded, no colour matrix; a mid grey of the white
     # reference's colour stays grey at the centre, where U is near the identity (within 2 codes: U's own error).

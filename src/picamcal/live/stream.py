@@ -198,9 +198,28 @@ def tone_curve_tables(encoding: str | None = None, tuning: Mapping[str, Any] | N
     return ToneCurve(table, guess, rounded.astype(np.float32))
 
 
-@functools.lru_cache(maxsize=2)
-def _numba_unmix(parallel: bool) -> Callable[..., None]:
-    """The numba kernel, compiled (or loaded from numba's cache) on first use: numba is imported only here."""
+def _one_step(curve: ToneCurve) -> bool:
+    """Whether one comparison with ``edges`` settles every first guess of the curve's ``encode`` table: no table step
+    holds more than one code's edge past its guess (so on the sRGB curve and the Pi's gamma curves, not where a curve
+    is steeper than a code a step, as ``gamma:2.2`` is near black).
+
+    The values that take table entry ``i`` lie below ``(i + 1) / top`` (the float32 product ``v * top`` is below
+    ``i + 1`` only if ``v`` is), so the highest code they reach is that of the last edge below that bound.
+    """
+    top = curve.encode.shape[0] - 1
+    bounds = np.arange(1, top + 2, dtype=np.float64) / top
+    highest = np.searchsorted(curve.edges.astype(np.float64), bounds, side="left") - 1
+    return bool((np.minimum(highest, 255) - curve.encode.astype(np.int64)).max() <= 1)
+
+
+@functools.lru_cache(maxsize=4)
+def _numba_unmix(parallel: bool, one_step: bool = False) -> Callable[..., None]:
+    """The numba kernel, compiled (or loaded from numba's cache) on first use: numba is imported only here.
+
+    With ``one_step`` (a curve :func:`_one_step` allows) each code is its guess plus one comparison, without a branch
+    (a fifth of the kernel's time); else the guess goes up while the value is at or above the next edge. Indices are
+    unsigned, which spares numba's test for negative ones.
+    """
     import numba
 
     signature = (
@@ -208,29 +227,39 @@ def _numba_unmix(parallel: bool) -> Callable[..., None]:
         "float32[::1])"
     )
 
-    @numba.njit(nogil=True, cache=True)
-    def encoded(value, encode, edges):
-        top = encode.shape[0] - 1
-        code = np.intp(encode[min(max(int(value * np.float32(top)), 0), top)])
-        while value >= edges[code + 1]:
-            code += 1
+    @numba.njit(nogil=True, cache=True, inline="always")
+    def stepped(value, encode, edges):
+        top = np.float32(encode.shape[0] - 1)
+        code = np.uint64(encode[np.uint64(min(max(value * top, np.float32(0.0)), top))])
+        while value >= edges[code + np.uint64(1)]:
+            code += np.uint64(1)
         return np.uint8(code)
+
+    @numba.njit(nogil=True, cache=True, inline="always")
+    def once(value, encode, edges):
+        top = np.float32(encode.shape[0] - 1)
+        code = np.uint64(encode[np.uint64(min(max(value * top, np.float32(0.0)), top))])
+        return np.uint8(code + np.uint64(value >= edges[code + np.uint64(1)]))
+
+    encoded = once if one_step else stepped
 
     @numba.njit(signature, parallel=parallel, cache=True, nogil=True)
     def unmix(rows, width, step, red, green, blue, field, decode, encode, edges):
+        red_at, green_at, blue_at = np.uint64(red), np.uint64(green), np.uint64(blue)
         for y in numba.prange(rows.shape[0]):
+            row, matrices = rows[y], field[y]
             for x in range(width):
-                at = x * step
-                r = decode[rows[y, at + red]]
-                g = decode[rows[y, at + green]]
-                b = decode[rows[y, at + blue]]
-                m = field[y, x]
+                at = np.uint64(x) * np.uint64(step)
+                r = decode[row[at + red_at]]
+                g = decode[row[at + green_at]]
+                b = decode[row[at + blue_at]]
+                m = matrices[np.uint64(x)]
                 out_r = m[0] * r + m[1] * g + m[2] * b
                 out_g = m[3] * r + m[4] * g + m[5] * b
                 out_b = m[6] * r + m[7] * g + m[8] * b
-                rows[y, at + red] = encoded(out_r, encode, edges)
-                rows[y, at + green] = encoded(out_g, encode, edges)
-                rows[y, at + blue] = encoded(out_b, encode, edges)
+                row[at + red_at] = encoded(out_r, encode, edges)
+                row[at + green_at] = encoded(out_g, encode, edges)
+                row[at + blue_at] = encoded(out_b, encode, edges)
 
     return unmix
 

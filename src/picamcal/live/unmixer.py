@@ -25,6 +25,7 @@ from .stream import (
     _check_stream_size,
     _contrast_enhancement_on,
     _numba_unmix,
+    _one_step,
     _unmix_numpy,
     stream_format,
     tone_curve_tables,
@@ -181,6 +182,8 @@ class LiveUnmixer:
         self.crop: Box | None = None
         self.sensor_mode: SensorMode | None = None
         self.follow_scaler_crop = False
+        #: The curve whose :func:`_one_step` was taken, and what it said (the kernel it picks).
+        self._one_step: tuple[ToneCurve, bool] | None = None
         #: Makes the field (height, width, 9) for another ScalerCrop (set by :meth:`prepare`).
         self._field_for: Callable[[Box], np.ndarray] | None = None
         self._fields: dict[Box, np.ndarray] = {}
@@ -320,7 +323,7 @@ class LiveUnmixer:
         unmixer._field_for = field_for
         unmixer._fields[crop] = unmixer.field
         if engine == "numba":
-            _numba_unmix(parallel)  # compiled (or loaded from numba's cache) now, not on the first frame
+            _numba_unmix(parallel, unmixer._settled_in_one_step())  # compiled (or loaded from numba's cache) now
         return unmixer
 
     @classmethod
@@ -441,6 +444,12 @@ class LiveUnmixer:
         unmixer.check_config(config)
         return unmixer
 
+    def _settled_in_one_step(self) -> bool:
+        """Whether one comparison settles each code of :attr:`curve` (:func:`_one_step`, worked out once a curve)."""
+        if self._one_step is None or self._one_step[0] is not self.curve:
+            self._one_step = (self.curve, _one_step(self.curve))
+        return self._one_step[1]
+
     def _describe(self) -> str:
         return f"{self.size[0]}x{self.size[1]} {self.format.name}"
 
@@ -547,7 +556,7 @@ prepared for 640x480 RGB888: prepare it with size=(1332, 990), format="XBGR8888"
         rows = self._rows(frame)
         fmt = self.format
         if self.engine == "numba":
-            _numba_unmix(self.parallel)(
+            _numba_unmix(self.parallel, self._settled_in_one_step())(
                 rows,
                 self.size[0],
                 fmt.bytes_per_pixel,
