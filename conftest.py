@@ -11,7 +11,10 @@ The whole session (the tests under ``tests/`` too, and the processes they start)
 compile per session. It is set here, in the root, so that a run of the doctests alone has it as well.
 
 The whole suite runs on ``python3 -m pytest -n auto`` (pytest-xdist, a test module to a worker): ``auto`` is one
-worker more than the cores, and the longest modules start first (``LONGEST_FIRST``).
+worker more than the cores, and the longest modules start first (``LONGEST_FIRST``). Its workers and the processes
+they start use one BLAS thread each (``BLAS_THREADS``): the suite already keeps every core busy, and OpenBLAS's
+threads, which spin while they wait for work, then cost many times their work (a matrix product of the tuning export
+took 20 times as long with two threads as with one on the busy 2-core machine).
 """
 
 from __future__ import annotations
@@ -21,11 +24,17 @@ import shutil
 import tempfile
 from pathlib import Path
 
-import numpy as np
-import pytest
-from _pytest.doctest import DoctestItem
+#: Set before numpy is first imported (here, in the process that starts the workers), so that the workers and every
+#: process the tests start inherit it; a variable the caller set is kept.
+BLAS_THREADS = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+for _name, _value in BLAS_THREADS.items():
+    os.environ.setdefault(_name, _value)
 
-import picamcal
+import numpy as np  # noqa: E402 (after BLAS_THREADS)
+import pytest  # noqa: E402
+from _pytest.doctest import DoctestItem  # noqa: E402
+
+import picamcal  # noqa: E402
 
 #: Examples that run a whole workflow and cannot be fast: marked ``slow``, so the fast loop (``-m "not slow"``,
 #: CONTRIBUTING.md) leaves them out; the full run still runs them. Every other example takes well under a second.
