@@ -59,6 +59,7 @@ from .isp import Isp, Layout, OutputPlan, encode_raw, sample_indices, warm_up
 from .modes import SensorSpec, scaled_spec, sensor_spec
 from .options import Options, VirtualCameraError
 from .request import Request, RequestStatus, fail, log
+from .timing import stage
 from .values import Orientation, Point, Rectangle, Size, orientation_bits
 
 #: What ``CameraManager.version`` says.
@@ -496,7 +497,8 @@ class CameraData:
                     starved_since = self._starved(starved_since, next_frame)
             if request is not None:
                 try:
-                    self._receive(request, settings, next_frame)
+                    with stage("sensor stage: controls, IPA, metadata"):
+                        self._receive(request, settings, next_frame)
                 except Exception as exc:  # a bug here must not leave picamera2 waiting for ever
                     self._fail_request(request, self.sequence, exc)
             self.sequence += 1
@@ -518,7 +520,8 @@ class CameraData:
                     return
                 frame = self.developing.pop(0)
             try:
-                self._develop(frame)
+                with stage("ISP stage: completion"):
+                    self._develop(frame)
             except Exception as exc:  # as in _run
                 self._fail_request(frame.request, frame.sequence, exc)
 
@@ -564,16 +567,19 @@ class CameraData:
         self.ipa.apply_controls(controls)
         exposure_us, gain, _ = self.ipa.exposure_of(settings)
         hflip, vflip = self.sensor_flips
-        frame = self.sensor.capture(mode, exposure_us, gain, self.sequence, hflip, vflip)
+        with stage("readout"):
+            frame = self.sensor.capture(mode, exposure_us, gain, self.sequence, hflip, vflip)
         ct = self.ipa.ct
-        means = isp.statistics(frame, ct)
+        with stage("statistics"):
+            means = isp.statistics(frame, ct)
         raw = self.streams[0]
         if raw in request._buffers:
             config = raw._configuration
             assert config is not None
             layout = Layout(str(config.pixel_format), config.size.width, config.size.height, config.stride,
                             config.frame_size)  # fmt: skip
-            encode_raw(frame, layout, mode.bit_depth, self._buffer_bytes(request, raw).reshape(layout.height, -1))
+            with stage("raw stream"):
+                encode_raw(frame, layout, mode.bit_depth, self._buffer_bytes(request, raw).reshape(layout.height, -1))
         metadata = self.ipa.metadata(settings, means)
         metadata["SensorTimestamp"] = int(timestamp)
         metadata["FrameWallClock"] = time.time_ns() - (time.monotonic_ns() - int(timestamp))
@@ -618,7 +624,8 @@ class CameraData:
         for stream, plan in frame.plans:
             if stream in request._buffers:
                 dest = self._buffer_bytes(request, stream)
-                isp.render(frame.raw, frame.ct, plan, frame.gains, frame.digital_gain, frame.ccm, dest)
+                with stage("ISP render"):
+                    isp.render(frame.raw, frame.ct, plan, frame.gains, frame.digital_gain, frame.ccm, dest)
                 del dest  # the mapping's export, before the next
         for stream, buffer in request._buffers.items():
             assert stream._configuration is not None

@@ -36,12 +36,12 @@ from typing import Any
 
 import numpy as np
 
-from .._rows import in_row_blocks
 from ..colour_wheel import wheel_layout, wheel_scene
 from ..errors import PicamcalError
 from ..sensors import black_level_at, get_sensor
 from ..simulate import Optics, expected_response, make_camera
 from .modes import ModeSpec, SensorSpec
+from .timing import row_blocks
 
 #: The exposure at which ``brightness`` is measured (:class:`picamcal.acquire.cameras.SimCamera`'s reference).
 REFERENCE_EXPOSURE_US = 10_000.0
@@ -268,7 +268,7 @@ class VirtualSensor:
                 deviates = rendered.bank[offset + start * width : offset + stop * width]
                 kernel(response[start:stop], deviates, fraction, shot, read, black, white, noise, frame[start:stop])
 
-            in_row_blocks(read_out, height)
+            row_blocks("readout", read_out, height)
             return frame
         signal = response * fraction
         if noise:
