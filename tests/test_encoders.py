@@ -19,13 +19,14 @@ from pathlib import Path
 import numpy as np
 import png
 import pytest
+import tifffile
 from PIL import Image, ImageCms
 
 import picamcal.output.encoders as encoders
 from picamcal.kernels import encode_codes
 from picamcal.output.encoders import encode_jpeg, encode_png, png_strips, write_jpeg, write_png
 from picamcal.output.provenance import SOFTWARE
-from picamcal.output.tiff import UINT16_WHITE, encode_uint16
+from picamcal.output.tiff import UINT16_WHITE, encode_uint16, uint16_rows_per_strip, write_tiff
 
 imagecodecs = pytest.importorskip("imagecodecs")
 
@@ -270,6 +271,34 @@ def test_uint16_codes_are_the_kernels_codes_on_any_number_of_threads(dtype):
     for threads in (1, 2, 7):
         np.testing.assert_array_equal(encode_uint16(rgb, threads=threads), expected)
     np.testing.assert_array_equal(encode_uint16(rgb[:, ::-2]), expected[:, ::-2])  # a view of the image
+
+
+@pytest.mark.parametrize("compression", [None, "zstd"])
+def test_uint16_tiff_is_tifffiles_file_of_the_codes_from_the_image_or_the_codes(tmp_path, compression):
+    """Strips converted and compressed on several threads: the same bytes as tifffile's own write of the codes."""
+    rng = np.random.default_rng(4)
+    rgb = (rng.random((301, 3001, 3)) * 2.2 - 0.1).astype(np.float32)  # 22 strips of 14 rows, the last of 7
+    rgb[0, 0] = [np.nan, np.inf, -1.0]
+    codes = encode_uint16(rgb)
+    rows = uint16_rows_per_strip(3001)
+    assert rows == 14  # 256 kB strips
+    info = {"source": "a.dng"}
+    written = []
+    for name, image, threads in (("float", rgb, 3), ("float1", rgb, 1), ("codes", codes, 2)):
+        path = write_tiff(tmp_path / f"{name}.tiff", image, "uint16-tiff", info, compression=compression,
+                          threads=threads)  # fmt: skip
+        written.append(path.read_bytes())
+    with tifffile.TiffFile(tmp_path / "float.tiff") as tif:
+        page = tif.pages.first
+        assert page.rowsperstrip == rows and len(page.dataoffsets) == -(-301 // rows)
+        assert page.compression.name == ("ZSTD" if compression else "NONE") and page.predictor == (2 if compression
+                                                                                                    else 1)  # fmt: skip
+        np.testing.assert_array_equal(tif.asarray(), codes)
+        description = page.description
+    tifffile.imwrite(tmp_path / "tifffile.tiff", codes, photometric="rgb", planarconfig="contig",
+                     description=description, software=SOFTWARE, metadata=None, compression=compression,
+                     predictor=True if compression else None, rowsperstrip=rows)  # fmt: skip
+    assert written[0] == written[1] == written[2] == (tmp_path / "tifffile.tiff").read_bytes()
 
 
 # ------------------------------------------------------------------------------------------------------ bad input

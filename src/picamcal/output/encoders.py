@@ -35,8 +35,9 @@ import io
 import os
 import struct
 import zlib
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import BinaryIO, TypeVar
 
@@ -85,8 +86,9 @@ def check_codes(codes: np.ndarray, dtypes: Sequence[type] = (np.uint8, np.uint16
 def parallel_map(fn: Callable[[int], _T], count: int, threads: int | None = None) -> Iterator[_T]:
     """``fn(0), fn(1), ... fn(count - 1)`` in order, computed on ``threads`` threads (None: every kernel thread).
 
-    The calls run in a pool of threads when there is more than one (numpy's and zlib's work releases the GIL), in
-    this thread otherwise. None is :func:`picamcal.kernels.kernel_threads`: every available core, or the share a
+    The calls run in a pool of threads when there is more than one (numpy's and zlib's work releases the GIL), at
+    most twice as many calls under way as threads, so that results wait only briefly for the caller; in this thread
+    otherwise. None is :func:`picamcal.kernels.kernel_threads`: every available core, or the share a
     batch gives each of its worker processes.
 
     Examples
@@ -99,8 +101,14 @@ def parallel_map(fn: Callable[[int], _T], count: int, threads: int | None = None
         yield from (fn(index) for index in range(count))
         return
     pool = ThreadPoolExecutor(min(threads, count), thread_name_prefix="picamcal-encode")
+    pending: deque[Future[_T]] = deque()
     try:
-        yield from pool.map(fn, range(count))
+        for index in range(count):
+            pending.append(pool.submit(fn, index))
+            if len(pending) == 2 * threads:  # a few calls ahead of the caller, not the whole image's results
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
     finally:  # also when the caller stops early (a failed write): the calls not yet started are dropped
         pool.shutdown(wait=True, cancel_futures=True)
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +43,9 @@ _CODE_MAX = 65535
 # Rows are converted a block of about this many pixels at a time, in a float temporary that stays in a core's cache
 # (768 kB in float32); each thread takes a strip of blocks.
 _BLOCK_PIXELS = 1 << 16
+# A uint16-tiff is written in strips of about this many bytes (tifffile's own strips for compressed data): each is
+# converted, and compressed, on one of the threads while the others are written.
+_STRIP_BYTES = 1 << 18
 
 
 def encode_uint16(rgb: np.ndarray, *, threads: int | None = None) -> np.ndarray:
@@ -67,27 +70,32 @@ def encode_uint16(rgb: np.ndarray, *, threads: int | None = None) -> np.ndarray:
     block = max(1, _BLOCK_PIXELS // max(1, width))
     blocks = -(-height // block)
     # A few strips a thread, so that a thread slowed by other work does not hold the others up.
-    per_strip = max(1, -(-blocks // (4 * threads))) * block
-    starts = range(0, height, per_strip)
-    work = rgb.dtype if rgb.dtype in (np.float32, np.float64) else np.dtype(np.float64)
-    scale, zero, top = work.type(UINT16_WHITE), work.type(0), work.type(_CODE_MAX)
+    rows = max(1, -(-blocks // (4 * threads))) * block
+    starts = range(0, height, rows)
 
     def convert(index: int) -> None:
-        start = starts[index]
-        values = np.empty((block, *rgb.shape[1:]), work)
-        for y in range(start, min(start + per_strip, height), block):
-            src, dst = rgb[y : y + block], out[y : y + block]
-            tmp = values[: len(src)]
-            with np.errstate(over="ignore"):  # the largest floats overflow to infinity, which clips as any other
-                np.multiply(src, scale, out=tmp, casting="unsafe")
-            np.clip(tmp, zero, top, out=tmp)  # a third of the time of fmax and fmin, but NaN stays NaN:
-            np.rint(tmp, out=tmp)
-            np.copyto(tmp, zero, where=np.isnan(tmp))  # NaN gives 0
-            np.copyto(dst, tmp, casting="unsafe")
+        _encode_rows(rgb[starts[index] : starts[index] + rows], out[starts[index] : starts[index] + rows])
 
     for _ in parallel_map(convert, len(starts), threads):
         pass
     return out
+
+
+def _encode_rows(rgb: np.ndarray, out: np.ndarray) -> None:
+    """Rows of linear RGB to their codes in ``out``, a cache-sized block at a time."""
+    work = rgb.dtype if rgb.dtype in (np.float32, np.float64) else np.dtype(np.float64)
+    scale, zero, top = work.type(UINT16_WHITE), work.type(0), work.type(_CODE_MAX)
+    block = max(1, _BLOCK_PIXELS // max(1, rgb.shape[1]))
+    values = np.empty((min(block, len(rgb)), *rgb.shape[1:]), work)
+    for y in range(0, len(rgb), block):
+        src, dst = rgb[y : y + block], out[y : y + block]
+        tmp = values[: len(src)]
+        with np.errstate(over="ignore"):  # the largest floats overflow to infinity, which clips as any other
+            np.multiply(src, scale, out=tmp, casting="unsafe")
+        np.clip(tmp, zero, top, out=tmp)  # a third of the time of fmax and fmin, but NaN stays NaN:
+        np.rint(tmp, out=tmp)
+        np.copyto(tmp, zero, where=np.isnan(tmp))  # NaN gives 0
+        np.copyto(dst, tmp, casting="unsafe")
 
 
 def write_tiff(
@@ -98,6 +106,7 @@ def write_tiff(
     *,
     overwrite: bool = False,
     compression: str | None = None,
+    threads: int | None = None,
 ) -> Path:
     """Write a corrected image as one of the :data:`TIFF_FORMATS`, atomically (:func:`picamcal.output.write_corrected`).
 
@@ -105,6 +114,10 @@ def write_tiff(
     (``picamcal.correct(..., dtype=np.uint16)``, :func:`encode_uint16`), written as they are. ``metadata`` is
     written as given (``uint16-tiff`` adds its ``encoding`` and ``scale``); ``compression="zstd"`` compresses
     losslessly with a predictor (needs imagecodecs).
+
+    A ``uint16-tiff`` is written in strips of about 256 kB, each converted from the float image and compressed on
+    ``threads`` threads (default :func:`picamcal.kernels.kernel_threads`) while the strips before it are written:
+    the same file as tifffile writes of the codes with those strips, from the image or from its codes.
 
     Examples
     --------
@@ -124,12 +137,19 @@ def write_tiff(
     if rgb.dtype == np.uint16 and output_format != "uint16-tiff":
         raise ValueError(f"uint16 codes are written as uint16-tiff, not {output_format}")
     info = dict(metadata or {})
+    options: dict[str, Any] = {}
     if output_format == "float32-tiff":
-        image = np.ascontiguousarray(rgb, dtype=np.float32)
+        image: Any = np.ascontiguousarray(rgb, dtype=np.float32)
     else:
         info.update(encoding=f"linear: value = code / {UINT16_WHITE} (the white reference at {UINT16_WHITE})")
         info.update(scale=UINT16_WHITE)
-        image = np.ascontiguousarray(rgb) if rgb.dtype == np.uint16 else encode_uint16(rgb)
+        rows = uint16_rows_per_strip(rgb.shape[1])
+        options.update(rowsperstrip=rows)
+        if rgb.dtype == np.uint16 and compression is None:  # nothing to do but write them, at once
+            image = np.ascontiguousarray(rgb)
+        else:
+            image = _uint16_strips(rgb, rows, compression, resolve_threads(threads))
+            options.update(shape=rgb.shape, dtype=np.uint16)
     path = Path(path)
     with atomic_path(path, overwrite=overwrite) as tmp:
         tifffile.imwrite(
@@ -142,8 +162,46 @@ def write_tiff(
             metadata=None,
             compression=compression,
             predictor=True if compression else None,
+            **options,
         )
     return path
 
 
-__all__ = ["TIFF_FORMATS", "TIFF_SUFFIX", "UINT16_WHITE", "encode_uint16", "write_tiff"]
+def uint16_rows_per_strip(width: int) -> int:
+    """The rows in each strip of a ``uint16-tiff`` ``width`` pixels wide: about 256 kB, tifffile's strips.
+
+    Examples
+    --------
+    >>> uint16_rows_per_strip(3280), uint16_rows_per_strip(4056)
+    (13, 10)
+    """
+    return max(1, _STRIP_BYTES // (6 * max(1, width)))
+
+
+def _uint16_strips(rgb: np.ndarray, rows: int, compression: str | None, threads: int) -> Iterator[bytes]:
+    """The strips of a ``uint16-tiff`` as its file holds them, in order, each made on one of ``threads`` threads:
+    the codes (converted from a float image), then, compressed, tifffile's horizontal predictor and zstd."""
+    encode: Callable[[np.ndarray], bytes] = np.ndarray.tobytes
+    if compression is not None:
+        try:
+            from imagecodecs import delta_encode, zstd_encode  # what tifffile compresses with (TIFF.COMPRESSORS)
+        except ImportError as error:
+            raise ImportError("zstd compression of TIFF files needs the imagecodecs package") from error
+
+        def encode(codes: np.ndarray) -> bytes:
+            return bytes(zstd_encode(delta_encode(codes, axis=-2)))  # type: ignore[arg-type]  # any buffer does
+
+    starts = range(0, rgb.shape[0], rows)
+
+    def strip(index: int) -> bytes:
+        part = rgb[starts[index] : starts[index] + rows]
+        if part.dtype == np.uint16:
+            return encode(np.ascontiguousarray(part))
+        codes = np.empty(part.shape, np.uint16)
+        _encode_rows(part, codes)
+        return encode(codes)
+
+    return parallel_map(strip, len(starts), threads)
+
+
+__all__ = ["TIFF_FORMATS", "TIFF_SUFFIX", "UINT16_WHITE", "encode_uint16", "uint16_rows_per_strip", "write_tiff"]
