@@ -12,6 +12,7 @@ import json
 import shutil
 import struct
 import subprocess
+import sys
 import threading
 import zlib
 from pathlib import Path
@@ -164,6 +165,14 @@ def test_png_metadata_chunks_come_after_IHDR_in_picamcals_order(tmp_path, dtype)
     pngcheck(path)
 
 
+def test_png_needs_no_imagecodecs(monkeypatch):
+    codes = codes_of((37, 53), np.uint16)
+    with_it = encode_png(codes, description=DESCRIPTION)
+    monkeypatch.setitem(sys.modules, "imagecodecs", None)  # import imagecodecs fails, as where it is not installed
+    assert encode_png(codes, description=DESCRIPTION) == with_it
+    np.testing.assert_array_equal(read_with_pypng(with_it), codes)
+
+
 def test_png_without_metadata_has_only_the_image():
     data = encode_png(codes_of((3, 3), np.uint8), software=None)
     assert [kind for kind, _ in chunks(data)] == [b"IHDR", b"IDAT", b"IEND"]
@@ -213,7 +222,7 @@ def test_jpeg_is_pillows_jpeg_with_the_same_settings(monkeypatch, backend, shape
     """Either encoder (imagecodecs' libjpeg-turbo, or Pillow without imagecodecs): Pillow's tables, segments and
     pixels, at quality 95 and 92."""
     if backend == "pillow":
-        monkeypatch.setattr(encoders, "_libjpeg_turbo", lambda: None)  # as where imagecodecs is not installed
+        monkeypatch.setitem(sys.modules, "imagecodecs", None)  # import imagecodecs fails, as where it is not installed
     codes = codes_of(shape, np.uint8, seed=11)
     profile = sRGB_profile()
     for quality in (95, 92):
@@ -252,7 +261,7 @@ def test_a_profile_over_one_segment_is_split_as_pillow_splits_it(monkeypatch):
     assert Image.open(io.BytesIO(ours)).info["icc_profile"] == big
     app2 = [s for s in head_segments(ours) if s[1] == 0xE2]
     assert [s[4:18] for s in app2] == [b"ICC_PROFILE\x00\x01\x02", b"ICC_PROFILE\x00\x02\x02"]
-    monkeypatch.setattr(encoders, "_libjpeg_turbo", lambda: None)
+    monkeypatch.setitem(sys.modules, "imagecodecs", None)
     assert head_segments(encode_jpeg(codes, quality=90, icc_profile=big)) == head_segments(ours)
 
 
