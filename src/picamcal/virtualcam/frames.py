@@ -120,8 +120,9 @@ def _resized(image: np.ndarray | None, width: int, height: int) -> np.ndarray:
 class _Rendered:
     """One mode's noiseless response per unit exposure, its digitisation and its bank of unit normal deviates.
 
-    The response is kept as the sensor's flips read it out (:meth:`oriented`), so that a frame is read in memory
-    order: one copy, turned when the flips change (mirroring is exact).
+    Both are kept as the sensor's flips read them out (:meth:`oriented`, :meth:`deviates`), so that a frame is read
+    in memory order, with the same deviate at each sensor pixel as in any other orientation: one copy of each, turned
+    when the flips change (mirroring is exact).
     """
 
     def __init__(
@@ -135,9 +136,9 @@ class _Rendered:
     ) -> None:
         self.black, self.white = black, white
         self.electrons_per_dn, self.read_noise = electrons_per_dn, read_noise
-        self.bank = bank
         self.size = response.size
         self._oriented: tuple[tuple[bool, bool], np.ndarray] = ((False, False), response)
+        self._bank: tuple[bool, np.ndarray] = (False, bank)
         self._lock = threading.Lock()
 
     def oriented(self, hflip: bool, vflip: bool) -> np.ndarray:
@@ -152,6 +153,28 @@ class _Rendered:
                 response = np.ascontiguousarray(turned)
                 self._oriented = ((hflip, vflip), response)
             return response
+
+    def deviates(self, offset: int, hflip: bool, vflip: bool) -> tuple[np.ndarray, int, int]:
+        """The bank as a frame read with these flips takes it from ``offset``: the bank (reversed where the rows are
+        read mirrored), where the first row's deviates begin in it, and the step from row to row.
+
+        A frame takes the deviates ``bank[offset:offset + size]`` as the sensor's rows, whatever the flips: the pixel
+        at row ``y``, column ``x`` of the sensor takes ``bank[offset + y * width + x]``. Read out mirrored, each row's
+        deviates are a run of the reversed bank, in order.
+        """
+        height, width = self._oriented[1].shape
+        reversed_, bank = self._bank
+        if reversed_ != hflip:
+            with self._lock:
+                reversed_, bank = self._bank
+                if reversed_ != hflip:
+                    bank = np.ascontiguousarray(bank[::-1])
+                    reversed_ = hflip
+                    self._bank = (reversed_, bank)
+        if hflip:  # bank[k] is reversed[len - 1 - k]
+            first = bank.size - offset - (height * width if vflip else width)
+            return bank, first, width if vflip else -width
+        return bank, offset + (height - 1) * width if vflip else offset, -width if vflip else width
 
 
 #: The modes rendered in this process, shared by the sensors (picamera2 drops its camera manager, and with it the
@@ -258,15 +281,17 @@ class VirtualSensor:
         if noise:
             rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(sequence,))))
             offset = int(rng.integers(0, rendered.size + 1))
+        bank, first, step = rendered.deviates(offset, hflip, vflip)
+        height, width = response.shape
         kernel = _compiled_readout()
         if kernel is not None:
-            height, width = response.shape
             frame = np.empty(response.shape, dtype=np.uint16)
             black, white = np.float32(rendered.black), np.float32(rendered.white)
 
-            def read_out(start: int, stop: int) -> None:  # rows start..stop, their deviates from the bank in order
-                deviates = rendered.bank[offset + start * width : offset + stop * width]
-                kernel(response[start:stop], deviates, fraction, shot, read, black, white, noise, frame[start:stop])
+            def read_out(start: int, stop: int) -> None:  # rows start..stop, each row's deviates a run of the bank
+                rows = response[start:stop]
+                at = first + start * step
+                kernel(rows, bank, at, step, fraction, shot, read, black, white, noise, frame[start:stop])
 
             row_blocks("readout", read_out, height)
             return frame
@@ -275,7 +300,7 @@ class VirtualSensor:
             spread = signal * shot
             spread += read
             np.sqrt(spread, out=spread)
-            spread *= rendered.bank[offset : offset + signal.size].reshape(signal.shape)
+            spread *= bank[first + np.arange(height)[:, None] * step + np.arange(width)]
             signal += spread
         signal += np.float32(rendered.black)
         np.rint(signal, out=signal)
@@ -285,7 +310,9 @@ class VirtualSensor:
 
 def _readout_loop(  # pragma: no cover - compiled by numba
     response: np.ndarray,
-    deviates: np.ndarray,
+    bank: np.ndarray,
+    first: int,
+    step: int,
     fraction: np.float32,
     shot: np.float32,
     read: np.float32,
@@ -295,11 +322,12 @@ def _readout_loop(  # pragma: no cover - compiled by numba
     out: np.ndarray,
 ) -> None:
     """:meth:`VirtualSensor.capture` in one pass (for numba): the same float32 arithmetic, pixel by pixel, in memory
-    order (the compiler vectorises it)."""
+    order (the compiler vectorises it); row ``y``'s deviates are ``bank[first + y * step:]``."""
     height, width = response.shape
     zero = np.float32(0.0)
     for y in range(height):
-        source, dest, normal = response[y], out[y], deviates[y * width : (y + 1) * width]
+        at = first + y * step
+        source, dest, normal = response[y], out[y], bank[at : at + width]
         for x in range(width):
             value = source[x] * fraction
             if noise:
