@@ -25,6 +25,7 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -105,6 +106,7 @@ class Commands(SphinxDirective):
             "XDG_CONFIG_HOME": str(folder / ".config"),
             "XDG_CACHE_HOME": str(folder / ".cache"),
         }
+        started = time.monotonic()
         try:
             done = subprocess.run(
                 command,
@@ -118,6 +120,7 @@ class Commands(SphinxDirective):
             printed, failed = done.stdout, done.returncode != 0
         except subprocess.TimeoutExpired as exc:
             printed, failed = f"{exc.output or ''}\n(stopped after {COMMAND_TIMEOUT} s)", True
+        logger.info(f"{self.get_location()}: ran in {time.monotonic() - started:.1f} s")
         if failed:
             last = "\n    ".join(shown(printed, folder).splitlines()[-15:])
             logger.warning(f"these commands failed in {folder}:\n    {last}", location=self.get_location())
