@@ -125,9 +125,16 @@ def test_correct_writes_float_tiffs_and_never_overwrites(sim, cal_path, tmp_path
 
 
 @pytest.mark.slow
-def test_demo_runs_and_writes_its_outputs(tmp_path):
+def test_demo_runs_and_writes_its_outputs_the_tuning_files_and_the_legacy_table(tmp_path):
     out = tmp_path / "demo"
-    result = run("demo", "--out", str(out), "--size", "480x360")
+    data = Path(__file__).parent / "data"
+    bases = (
+        "--tuning-base",
+        str(data / "tuning_vc4_imx219.json"),
+        "--tuning-base",
+        str(data / "tuning_pisp_imx219.json"),
+    )
+    result = run("demo", "--out", str(out), "--size", "640x480", *bases)
     assert result.returncode == 0, result.stderr
     assert "centre" in result.stdout and "ΔE2000" in result.stdout
     figures = json.loads((out / "figures.json").read_text())
@@ -136,6 +143,11 @@ def test_demo_runs_and_writes_its_outputs(tmp_path):
         assert (out / f"target_{mode}.png").stat().st_size > 1000
     assert figures["mode_meaning"] == {mode.value: mode.description for mode in Mode}  # one definition
     assert load_calibration(out / "calibration.npz").sensor == "imx219"
+    assert set(figures["exports"]) == {"lens_shading_legacy.npy", "tuning_bcm2835.json", "tuning_pisp.json"}
+    for name, record in figures["exports"].items():
+        assert (out / name).exists()
+        assert record["white_flatness_percent"] < 3.0  # an independent noisy white, through each export
+    assert "tuning_pisp.json" in result.stdout
     assert_bad_input(run("demo", "--out", str(out), "--size", "480x360"), "not empty")
 
 

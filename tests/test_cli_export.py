@@ -168,19 +168,6 @@ def test_bad_inputs(run_dir, tmp_path):
 
 
 @pytest.mark.slow
-def test_demo_writes_the_tuning_files_and_the_legacy_table(tmp_path):
-    out = tmp_path / "demo"
-    result = run("demo", "--out", str(out), "--size", "640x480", "--tuning-base", str(VC4), "--tuning-base", str(PISP))
-    assert result.returncode == 0, result.stderr
-    figures = json.loads((out / "figures.json").read_text())
-    assert set(figures["exports"]) == {"lens_shading_legacy.npy", "tuning_bcm2835.json", "tuning_pisp.json"}
-    for name, record in figures["exports"].items():
-        assert (out / name).exists()
-        assert record["white_flatness_percent"] < 3.0  # an independent noisy white, through each export
-    assert "tuning_pisp.json" in result.stdout
-
-
-@pytest.mark.slow
 def test_export_tuning_without_a_base_uses_the_bundled_stock_files(run_dir, tmp_path):
     from picamcal.export.tuning import BUNDLED_TUNING_DIR, check_tuning
 
