@@ -208,6 +208,19 @@ def test_the_compiled_kernels_write_the_numpy_paths_bytes(monkeypatch):
     assert len(np.unique(pixels)) > 1000 and np.all(pixels >> 24 == 255)  # varied colours; the X bytes 255
 
 
+def test_a_raw_buffer_too_short_for_a_packed_row_is_refused_by_both_paths(monkeypatch):
+    # The compiled packer writes whole rows with no bounds check: a stride short of a row would write past the buffer
+    # (memory corruption); both paths refuse it, as pack does.
+    from picamcal.virtualcam import isp
+
+    frame = np.zeros((4, 140), np.uint16)  # a 12-bit packed row of 140 pixels is 210 bytes
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(isp, "_compiled_pack", lambda: None)
+        with pytest.raises(ValueError, match="stride 192 is shorter than the 210 bytes of a row"):
+            isp.encode_raw(frame, isp.Layout("SGRBG12_CSI2P", 140, 4, 192, 768), 12, np.zeros((4, 192), np.uint8))
+
+
 def test_the_statistics_from_the_raw_frame_are_those_of_the_isps_planes():
     # The IPA's statistics come from the raw frame (the sensor's stage), so that the ISP can process a frame while
     # the next is read out: they are the clipped means of the linear planes on the same coarse grid, to the bit.

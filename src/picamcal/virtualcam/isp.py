@@ -36,7 +36,7 @@ import numpy as np
 from ..export.isp import channel_tables, table_to_pixels
 from ..geometry import SensorMode
 from ..raw.model import site_channels
-from ..raw.packing import pack
+from ..raw.packing import pack, packed_row_bytes
 from ..raw.picamera2.pisp import pisp_compress
 from .timing import row_blocks
 
@@ -80,6 +80,8 @@ def encode_raw(frame: np.ndarray, layout: Layout, bits: int, dest: np.ndarray) -
         kernel = _compiled_pack() if bits in (10, 12) else None
         if kernel is None:
             dest[:] = pack(frame, bits, layout.stride)
+        elif dest.shape[1] < (need := packed_row_bytes(width, bits)):  # the kernel would write past the buffer
+            raise ValueError(f"stride {dest.shape[1]} is shorter than the {need} bytes of a row")
         else:
             row_blocks("raw stream", lambda a, b: kernel(frame[a:b], bits, dest[a:b]), height)
     elif name.endswith("16"):
