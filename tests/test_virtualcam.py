@@ -208,6 +208,21 @@ def test_the_compiled_kernels_write_the_numpy_paths_bytes(monkeypatch):
     assert len(np.unique(pixels)) > 1000 and np.all(pixels >> 24 == 255)  # varied colours; the X bytes 255
 
 
+@pytest.mark.parametrize("width", [140, 139, 138, 137])
+@pytest.mark.parametrize("bits", [10, 12])
+def test_the_compiled_packer_writes_packs_bytes_for_any_width(width, bits):
+    # A row's whole groups take the vectorised loop; a group the row's end cuts short is padded with zeros, and the
+    # stride's padding is zero, as pack writes them.
+    pytest.importorskip("numba")
+    from picamcal.raw.packing import pack
+    from picamcal.virtualcam import isp
+
+    frame = np.random.default_rng(width).integers(0, 1 << bits, (6, width)).astype(np.uint16)
+    dest = np.full((6, 256), 7, np.uint8)
+    isp.encode_raw(frame, isp.Layout(f"SGRBG{bits}_CSI2P", width, 6, 256, 6 * 256), bits, dest)
+    np.testing.assert_array_equal(dest, pack(frame, bits, 256))
+
+
 def test_a_raw_buffer_too_short_for_a_packed_row_is_refused_by_both_paths(monkeypatch):
     # The compiled packer writes whole rows with no bounds check: a stride short of a row would write past the buffer
     # (memory corruption); both paths refuse it, as pack does.
