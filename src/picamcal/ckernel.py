@@ -1,11 +1,15 @@
 """The fused correction kernel in C: ``_kernel.c``, compiled once per installation and loaded with ctypes.
 
 The kernel is that of :mod:`picamcal.kernels` (black, flat field, Malvar-He-Cutler demosaic, matrix field, float32
-or uint16 output in one pass), with the same float32 operations in the same order as the numba and numpy paths:
-uint16 codes equal numpy's bit for bit (power-of-two scale), and the float32 values too (each operation is an
-IEEE float32 one, correctly rounded, none fused). Its point is the start: loading the compiled library takes
-about a millisecond, where numba's runtime takes about half a second to load its own cached kernel. It keeps no
-threads between calls, so a process may fork after using it.
+output or codes in one pass), with the same float32 operations in the same order as the numba and numpy paths:
+codes equal numpy's bit for bit (uint16 ones of a power-of-two scale, and a :class:`~picamcal.kernels.SrgbTable`'s),
+and the float32 values too (each operation is an IEEE float32 one, correctly rounded, none fused). Its point is the
+start: loading the compiled library takes about a millisecond, where numba's runtime takes about half a second to
+load its own cached kernel. It keeps no threads between calls, so a process may fork after using it.
+
+The same library encodes a float32 image as those codes (:func:`encode_c`; :func:`encode_image` picks it, else
+numba's or numpy's): the single-file outputs of a float image (``uint16-tiff``, the sRGB formats) convert with the
+kernel's own code.
 
 The first process that needs the kernel compiles it with the system's C compiler (under a second) into the cache
 (:func:`cache_dir`), under a name keyed by the source, the compiler command, its flags and the machine (and the
@@ -40,7 +44,16 @@ import numpy as np
 
 from ._atomic import atomic_path
 from .errors import KernelBuildError, OutputError
-from .kernels import CorrectionFields, kernel_threads, output_array
+from .kernels import (
+    CorrectionFields,
+    SrgbTable,
+    encode_codes,
+    encode_numba,
+    encode_table,
+    kernel_threads,
+    numba_available,
+    output_array,
+)
 
 #: The kernel's source, shipped in the package.
 SOURCE = Path(__file__).with_name("_kernel.c")
@@ -49,6 +62,10 @@ SOURCE = Path(__file__).with_name("_kernel.c")
 FLAGS = ("-O3", "-march=native", "-shared", "-fPIC", "-pthread", "-ffp-contract=off", "-std=gnu11")
 #: Rows per work item, as the numba kernel's (:data:`picamcal.kernels.NUMBA_BLOCK_ROWS`).
 C_BLOCK_ROWS = 64
+#: Rows per work item of :func:`encode_c`.
+ENCODE_BLOCK_ROWS = 16
+#: Values of :func:`encode_image`'s ``engine``.
+ENCODE_ENGINES = ("auto", "c", "numba", "numpy")
 
 #: The lines of /proc/cpuinfo that say which instructions the CPU has (x86, Arm, RISC-V), not its speed or cores.
 _CPU_LINES = {
@@ -67,6 +84,37 @@ _CPU_LINES = {
 }
 
 _lock = threading.Lock()
+
+
+class _Output(ctypes.Structure):
+    """``picamcal_output`` of ``_kernel.c``: what is written for each pixel."""
+
+    _fields_ = [
+        ("out", ctypes.c_void_p),
+        ("kind", ctypes.c_int64),
+        ("scale", ctypes.c_float),
+        ("matrix", ctypes.c_float * 9),
+        ("base", ctypes.c_void_p),
+        ("inside", ctypes.c_void_p),
+        ("cells", ctypes.c_int64),
+    ]
+
+
+#: ``picamcal_output.kind``: float32 values, scaled uint16 codes, the sRGB formats' uint8 or uint16 codes.
+_KINDS = {"float32": 0, "scaled": 1, "uint8": 2, "uint16": 3}
+
+
+class _EncodeJob(ctypes.Structure):
+    """``picamcal_encode_job`` of ``_kernel.c``: the same fields in the same order."""
+
+    _fields_ = [
+        ("image", ctypes.c_void_p),
+        ("height", ctypes.c_int64),
+        ("width", ctypes.c_int64),
+        ("output", _Output),
+        ("block_rows", ctypes.c_int64),
+        ("threads", ctypes.c_int64),
+    ]
 
 
 class _Job(ctypes.Structure):
@@ -92,9 +140,7 @@ class _Job(ctypes.Structure):
         ("matrix_col_weights", ctypes.c_void_p),
         ("matrix_runs", ctypes.c_void_p),
         ("n_runs", ctypes.c_int64),
-        ("floats", ctypes.c_void_p),
-        ("codes", ctypes.c_void_p),
-        ("code_scale", ctypes.c_float),
+        ("output", _Output),
         ("block_rows", ctypes.c_int64),
         ("threads", ctypes.c_int64),
     ]
@@ -224,12 +270,18 @@ def _failed(problem: str, marker: Path | None) -> KernelBuildError:
 def _open(path: Path) -> ctypes.CDLL:
     """Load the compiled library and declare its function; OSError if it is no loadable library of this source."""
     library = ctypes.CDLL(str(path))
-    library.picamcal_job_size.restype = ctypes.c_size_t
-    library.picamcal_job_size.argtypes = []
-    if library.picamcal_job_size() != ctypes.sizeof(_Job):
-        raise OSError(f"{path} was built from another layout of the kernel's arguments")
+    for name, struct in (("job", _Job), ("encode_job", _EncodeJob)):
+        try:
+            size = getattr(library, f"picamcal_{name}_size")
+        except AttributeError:
+            raise OSError(f"{path} is not a build of this kernel (it has no picamcal_{name}_size)") from None
+        size.restype, size.argtypes = ctypes.c_size_t, []
+        if size() != ctypes.sizeof(struct):
+            raise OSError(f"{path} was built from another layout of the kernel's arguments")
     library.picamcal_correct.restype = ctypes.c_int
     library.picamcal_correct.argtypes = [ctypes.POINTER(_Job)]
+    library.picamcal_encode.restype = ctypes.c_int
+    library.picamcal_encode.argtypes = [ctypes.POINTER(_EncodeJob)]
     return library
 
 
@@ -336,6 +388,7 @@ def correct_c(
     block_rows: int = C_BLOCK_ROWS,
     *,
     code_scale: float | None = None,
+    table: SrgbTable | None = None,
 ) -> np.ndarray:
     """The fused correction with the compiled C kernel (same arithmetic as :func:`picamcal.kernels.correct_numpy`).
 
@@ -350,16 +403,17 @@ def correct_c(
     fields : CorrectionFields
         From :func:`picamcal.correct.correction_fields`, with the image's black level.
     out : ndarray, optional
-        float32 (H, W, 3), or uint16 (H, W, 3) with ``code_scale``.
+        float32 (H, W, 3), or of the codes' type with ``code_scale`` or ``table``.
     block_rows : int
         Rows per work item handed to a thread.
-    code_scale : float, optional
-        Return uint16 codes ``round(value * code_scale)`` (:func:`picamcal.kernels.encode_codes`; a power of
-        two, for the codes to be those of numpy bit for bit) instead of float32.
+    code_scale, table : float or SrgbTable, optional
+        Return codes instead of float32: uint16 ``round(value * code_scale)``
+        (:func:`picamcal.kernels.encode_codes`; a power of two, for the codes to be those of numpy bit for bit),
+        or those of ``table`` (:func:`picamcal.kernels.encode_table`).
 
     Returns
     -------
-    ndarray of float32 or, with ``code_scale``, uint16, shape (H, W, 3)
+    ndarray of float32, or of the codes' type, shape (H, W, 3)
 
     Raises
     ------
@@ -372,6 +426,7 @@ def correct_c(
     --------
     >>> from picamcal.correct import correction_fields
     >>> from picamcal.kernels import correct_numpy
+    >>> from picamcal.output.colour import srgb_encoding
     >>> from picamcal.simulate import make_camera, simulate_references
     >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
     >>> cal, raw = picamcal.calibrate(**refs), refs["white"]
@@ -381,6 +436,9 @@ def correct_c(
     ...     assert np.array_equal(correct_c(raw.bayer, fields), correct_numpy(raw.bayer, fields))
     ...     codes = correct_c(raw.bayer, fields, code_scale=32768)
     ...     assert np.array_equal(codes, correct_numpy(raw.bayer, fields, code_scale=32768))
+    ...     srgb = srgb_encoding(bits=8)  # the sRGB outputs' uint8 codes, straight from the kernel
+    ...     codes = correct_c(raw.bayer, fields, table=srgb)
+    ...     assert np.array_equal(codes, correct_numpy(raw.bayer, fields, table=srgb))
     """
     library = _library()
     if isinstance(library, KernelBuildError):
@@ -391,7 +449,7 @@ def correct_c(
     if block_rows < 1:
         raise ValueError(f"block_rows must be at least 1, not {block_rows}")
     height, width = bayer.shape
-    out = output_array(out, height, width, np.float32 if code_scale is None else np.uint16)
+    output, keep = _output(out, height, width, code_scale, table)
     black = _contiguous(fields.black, np.float32, (4,), "black")
     channels = _contiguous(fields.channels, np.int64, (4,), "channels")
     site_gains = _contiguous(fields.site_gains, np.float32, (4,), "site_gains")
@@ -437,12 +495,160 @@ def correct_c(
         matrix_col_weights=_address(col_weights),
         matrix_runs=_address(runs),
         n_runs=0 if runs is None else runs.size - 1,
-        floats=_address(out) if code_scale is None else None,
-        codes=None if code_scale is None else _address(out),
-        code_scale=0.0 if code_scale is None else code_scale,
+        output=output,
         block_rows=block_rows,
         threads=kernel_threads(),
     )
     if library.picamcal_correct(ctypes.byref(job)) != 0:
         raise MemoryError("the C kernel's threads could not allocate their rows")
+    return keep[0]
+
+
+def _output(
+    out: np.ndarray | None, height: int, width: int, code_scale: float | None, table: SrgbTable | None
+) -> tuple[_Output, tuple[np.ndarray, ...]]:
+    """``picamcal_output`` for ``out`` (:func:`picamcal.kernels.output_array`), and the arrays it points into
+    (``out`` first), to be kept alive while the kernel runs; ValueError for a table the kernel would misread."""
+    if table is None:
+        array = output_array(out, height, width, np.float32 if code_scale is None else np.uint16)
+        output = _Output(_address(array), _KINDS["float32" if code_scale is None else "scaled"], code_scale or 0.0)
+        return output, (array,)
+    if code_scale is not None:
+        raise ValueError("codes are either scaled (code_scale) or from a table, not both")
+    base, inside = np.ascontiguousarray(table.base), np.ascontiguousarray(table.inside, dtype=np.float32)
+    matrix = np.asarray(table.matrix, dtype=np.float32)
+    cells = base.size - 1
+    if base.dtype not in (np.uint8, np.uint16) or base.ndim != 1 or cells < 1 or inside.shape != base.shape:
+        raise ValueError("an sRGB table's base is uint8 or uint16 (cells + 1,), and its inside float32 of that shape")
+    if cells & (cells - 1) or matrix.shape != (3, 3) or not np.isfinite(matrix).all():
+        raise ValueError("an sRGB table has a power of two of cells and a finite 3x3 matrix")
+    codes = output_array(out, height, width, base.dtype)
+    elements = (ctypes.c_float * 9)(*matrix.ravel().tolist())
+    output = _Output(_address(codes), _KINDS[base.dtype.name], 0.0, elements, _address(base), _address(inside), cells)
+    return output, (codes, base, inside)
+
+
+def encode_c(
+    rgb: np.ndarray,
+    out: np.ndarray | None = None,
+    *,
+    code_scale: float | None = None,
+    table: SrgbTable | None = None,
+    block_rows: int = ENCODE_BLOCK_ROWS,
+) -> np.ndarray:
+    """A float32 (H, W, 3) image's codes with the compiled library, on
+    :func:`picamcal.kernels.kernel_threads` threads: those the kernel writes (:func:`correct_c`), bit for bit.
+
+    Parameters
+    ----------
+    rgb : ndarray of float32, shape (H, W, 3)
+    out : ndarray, optional
+        Of the codes' type, (H, W, 3).
+    code_scale, table : float or SrgbTable
+        uint16 ``round(value * code_scale)`` (:func:`picamcal.kernels.encode_codes`), or the codes of ``table``
+        (:func:`picamcal.kernels.encode_table`): one of them.
+    block_rows : int
+        Rows per work item handed to a thread.
+
+    Raises
+    ------
+    KernelBuildError
+        The library cannot be compiled here.
+
+    Examples
+    --------
+    >>> if c_available():
+    ...     print(encode_c(np.array([[[1.0, 0.5, np.nan]]], np.float32), code_scale=32768).ravel())
+    ... else:
+    ...     print(np.array([32768, 16384, 0], np.uint16))
+    [32768 16384     0]
+    """
+    library = _library()
+    if isinstance(library, KernelBuildError):
+        raise library
+    if code_scale is None and table is None:
+        raise ValueError("encode_c makes codes: give code_scale or table")
+    if block_rows < 1:
+        raise ValueError(f"block_rows must be at least 1, not {block_rows}")
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"an image to encode is (H, W, 3), not {rgb.shape}")
+    height, width = rgb.shape[:2]
+    output, keep = _output(out, height, width, code_scale, table)
+    job = _EncodeJob(_address(rgb), height, width, output, block_rows, kernel_threads())
+    library.picamcal_encode(ctypes.byref(job))
+    return keep[0]
+
+
+def encode_image(
+    rgb: np.ndarray,
+    out: np.ndarray | None = None,
+    *,
+    code_scale: float | None = None,
+    table: SrgbTable | None = None,
+    engine: str = "auto",
+) -> np.ndarray:
+    """A corrected float image's codes, as the correction kernels write them: with the C library, else numba's
+    parallel loop, else numpy strip by strip (``engine="auto"``, as :func:`picamcal.correct.correct` picks).
+
+    A float32 image gives the codes the kernel writes, bit for bit; another float type is rounded to float32 a
+    strip of rows at a time (no full-size copy).
+
+    Parameters
+    ----------
+    rgb : ndarray, shape (H, W, 3)
+        Linear RGB, the white reference at 1.0.
+    out : ndarray, optional
+        Of the codes' type, (H, W, 3).
+    code_scale, table : float or SrgbTable
+        uint16 ``round(value * code_scale)`` (:func:`picamcal.kernels.encode_codes`; ``uint16-tiff``'s with
+        :data:`picamcal.correct.UINT16_WHITE`), or the codes of ``table``
+        (:func:`picamcal.kernels.encode_table`; the sRGB formats' with :func:`picamcal.output.colour.srgb_encoding`).
+    engine : {"auto", "c", "numba", "numpy"}
+
+    Returns
+    -------
+    ndarray of uint16, or of the table's codes, shape (H, W, 3)
+
+    Examples
+    --------
+    >>> rgb = np.array([[[1.0, 0.5, 2.5]]], np.float32)
+    >>> encode_image(rgb, code_scale=32768).ravel()
+    array([32768, 16384, 65535], dtype=uint16)
+    >>> from picamcal.output.colour import srgb_encoding
+    >>> encode_image(rgb, table=srgb_encoding(bits=8), engine="numpy").ravel()
+    array([231, 170, 255], dtype=uint8)
+    """
+    if engine not in ENCODE_ENGINES:
+        raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENCODE_ENGINES)}")
+    if (code_scale is None) == (table is None):
+        raise ValueError("give either code_scale or table")
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"an image to encode is (H, W, 3), not {rgb.shape}")
+    height, width = rgb.shape[:2]
+    out = output_array(out, height, width, np.uint16 if table is None else table.base.dtype)
+    if rgb.dtype != np.float32 or not rgb.flags.c_contiguous:  # float32 strips of about a megapixel
+        step = max(1, (1 << 20) // max(1, width))
+        for y in range(0, height, step):
+            strip = np.ascontiguousarray(rgb[y : y + step], dtype=np.float32)
+            encode_image(strip, out[y : y + step], code_scale=code_scale, table=table, engine=engine)
+        return out
+    if engine in ("auto", "c"):
+        try:
+            return encode_c(rgb, out, code_scale=code_scale, table=table)
+        except KernelBuildError:
+            if engine == "c":
+                raise
+    if engine == "numba" or (engine == "auto" and numba_available()):
+        try:
+            return encode_numba(rgb, out, code_scale=code_scale, table=table)
+        except ImportError:
+            if engine == "numba":
+                raise
+    step = max(1, (1 << 20) // max(1, width))  # numpy's temporaries: a strip of rows at a time
+    for y in range(0, height, step):
+        if table is None:
+            encode_codes(rgb[y : y + step], code_scale or 0.0, out[y : y + step])
+        else:
+            encode_table(rgb[y : y + step], table, out[y : y + step])
     return out

@@ -30,12 +30,13 @@ from numpy.typing import DTypeLike
 from .bayer import bin_centres, bin_sites, block_mean, centre_region, sites_to_channels
 from .calibration import Calibration
 from .calibration.resample import CROP_TOLERANCE, calibration_for_raw
-from .ckernel import correct_c
+from .ckernel import correct_c, encode_image
 from .errors import CalibrationFileError, KernelBuildError, PicamcalError, PicamcalWarning
 from .geometry import SensorMode, image_to_image, sensor_area
 from .interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from .kernels import (
     CorrectionFields,
+    SrgbTable,
     correct_numba,
     correct_numpy,
     encode_codes,
@@ -298,7 +299,8 @@ def correct(
     *,
     engine: str = "auto",
     out: np.ndarray | None = None,
-    dtype: DTypeLike = np.float32,
+    dtype: DTypeLike | None = None,
+    encoding: SrgbTable | None = None,
     geometry: SensorMode | None = None,
 ) -> np.ndarray:
     """Correct a raw image's vignetting and colour crosstalk.
@@ -328,11 +330,16 @@ def correct(
         Write the full-resolution result here (C-contiguous, of the returned shape and type) instead of
         into a new array: when correcting many frames, reusing one buffer saves the cost of touching fresh
         memory (about a fifth of the time of a 12-megapixel frame with the numba kernel). Not with ``binned``.
-    dtype : {np.float32, np.uint16}
+    dtype : {np.float32, np.uint16, np.uint8}, optional
         ``np.uint16`` returns the ``uint16-tiff`` codes instead, (H, W, 3) as the image: ``round(value *``
         :data:`UINT16_WHITE` ``)`` clipped to 0..65535, NaN as 0, bit for bit those of
         :func:`picamcal.output.tiff.encode_uint16` of the float32 result, but computed row by row with no
-        float32 image at full resolution (half the memory). Not with ``binned``.
+        float32 image at full resolution (half the memory). Not with ``binned``. Default float32, or with
+        ``encoding`` its codes' type (uint8 or uint16; ``dtype`` may say it again).
+    encoding : SrgbTable, optional
+        Return the codes of this encoding instead, written by the kernel row by row with no float32 image:
+        the sRGB formats' from :func:`picamcal.output.colour.srgb_encoding` (8 or 16 bit), bit for bit
+        :func:`picamcal.output.colour.encode_srgb` of the float32 result. Not with ``binned``.
     geometry : SensorMode, optional
         The frame's sensor mode (``--sensor-crop``, ``--sensor-mode``: :func:`picamcal.raw.model.raw_geometry`);
         by default what its file says, else the registry's mode of its size.
@@ -367,20 +374,23 @@ def correct(
     >>> codes = picamcal.correct(target, cal, dtype=np.uint16)  # uint16-tiff codes, the white at 32768
     >>> codes.shape, codes.dtype
     ((240, 320, 3), dtype('uint16'))
+    >>> from picamcal.output.colour import camera_to_srgb, srgb_encoding
+    >>> srgb = srgb_encoding(camera_to_srgb(target.metadata), bits=8)  # the srgb-jpeg and srgb-png codes
+    >>> picamcal.correct(target, cal, dtype=np.uint8, encoding=srgb).dtype
+    dtype('uint8')
     """
     mode = choose_mode(calibration, mode)
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENGINES)}")
-    to_codes = np.dtype(dtype) == np.uint16
-    if not to_codes and np.dtype(dtype) != np.float32:
-        raise ValueError(f"dtype must be numpy.float32 or numpy.uint16, not {np.dtype(dtype)}")
+    kind = _output_type(dtype, encoding)
+    to_codes = kind == np.uint16 and encoding is None
     calibration = calibration_for_raw(calibration, raw, geometry)
     matrices = calibration.matrices(mode)
     raw = with_known_black_level(raw, calibration)
     warn_if_clipped(raw)
     if binned:
-        if out is not None or to_codes:
-            raise ValueError("out and dtype take a full-resolution image; binned=True returns a new float32 array")
+        if out is not None or kind != np.float32:
+            raise ValueError("out, dtype and encoding take a full-resolution image; binned=True returns float32")
         sites = bin_sites(raw.black_subtracted(), calibration.bin_size)
         white = (
             np.broadcast_to(calibration.centre_white, sites.shape)
@@ -393,6 +403,8 @@ def correct(
         return rgb.astype(np.float32)
     if engine == "reference":
         rgb = _correct_reference(raw, calibration, mode)
+        if encoding is not None:
+            return encode_image(rgb, output_array(out, raw.height, raw.width, kind), table=encoding)
         if to_codes:
             return encode_codes(rgb, UINT16_WHITE, output_array(out, raw.height, raw.width, np.uint16))
         if out is None:
@@ -405,19 +417,33 @@ def correct(
     scale = UINT16_WHITE if to_codes else None
     if engine in ("auto", "c"):
         try:
-            return correct_c(raw.bayer, fields, out, code_scale=scale)
+            return correct_c(raw.bayer, fields, out, code_scale=scale, table=encoding)
         except KernelBuildError:
             if engine == "c":
                 raise
             # No C compiler, or it failed (remembered, not tried again): numba's or numpy's path gives the same.
     if engine == "numba" or (engine == "auto" and numba_available()):
         try:
-            return correct_numba(raw.bayer, fields, out, code_scale=scale)
+            return correct_numba(raw.bayer, fields, out, code_scale=scale, table=encoding)
         except ImportError:
             if engine == "numba":
                 raise
             # numba is installed but does not import (built for another numpy): numpy's path gives the same.
-    return correct_numpy(raw.bayer, fields, out, code_scale=scale)
+    return correct_numpy(raw.bayer, fields, out, code_scale=scale, table=encoding)
+
+
+def _output_type(dtype: DTypeLike | None, encoding: SrgbTable | None) -> np.dtype:
+    """What :func:`correct` returns: float32, uint16 codes, or the codes of ``encoding`` (``dtype`` may repeat it)."""
+    if encoding is not None:
+        kind = np.dtype(encoding.base.dtype)
+        if dtype is not None and np.dtype(dtype) != kind:
+            raise ValueError(f"this encoding's codes are {kind}, not {np.dtype(dtype)}: give its dtype, or none")
+        return kind
+    kind = np.dtype(np.float32 if dtype is None else dtype)
+    if kind not in (np.float32, np.uint16):
+        hint = ", or uint8 with an encoding (picamcal.output.colour.srgb_encoding)" if kind == np.uint8 else ""
+        raise ValueError(f"dtype must be numpy.float32 or numpy.uint16{hint}, not {kind}")
+    return kind
 
 
 def _correct_reference(raw: RawImage, calibration: Calibration, mode: Mode) -> np.ndarray:

@@ -14,12 +14,12 @@ Demosaicing is Malvar, He and Cutler (2004), its four 5x5 linear filters with th
 colour-demosaicing's implementation (``scipy.ndimage.convolve``'s default ``reflect``: the frame is
 mirrored about its edge, edge pixel repeated).
 
-The output is either the (H, W, 3) float32 image or its uint16 codes, interleaved the same way,
-``round(value * scale)`` clipped to 0..65535 with NaN as 0 (:func:`encode_codes`), written row by row
-without a float32 image at full resolution.
+The output is the (H, W, 3) float32 image or its codes interleaved the same way, written row by row with no
+float32 image at full resolution: uint16 ``round(value * scale)`` clipped, NaN as 0 (:func:`encode_codes`), or
+the sRGB formats' codes, a 3x3 matrix then the transfer function by table (:class:`SrgbTable`, :func:`encode_table`).
 
 Three implementations of one arithmetic: the same float32 operations in the same order, so they give
-the same result to the last bit (the uint16 codes always; the float32 values on the machines measured, and
+the same result to the last bit (the codes always; the float32 values on the machines measured, and
 within an ulp or so where a compiler rounds one operation differently):
 
 ``c``
@@ -61,13 +61,7 @@ _CODE_MAX = 65535
 #: Threads of the parallel kernels, as :func:`set_kernel_threads` set it; None for :func:`available_cores`.
 _threads: int | None = None
 
-_F05 = np.float32(0.5)
-_F15 = np.float32(1.5)
-_F2 = np.float32(2.0)
-_F4 = np.float32(4.0)
-_F5 = np.float32(5.0)
-_F6 = np.float32(6.0)
-_EIGHTH = np.float32(0.125)
+_F05, _F15, _F2, _F4, _F5, _F6, _EIGHTH = (np.float32(v) for v in (0.5, 1.5, 2.0, 4.0, 5.0, 6.0, 0.125))
 
 
 class Taps(NamedTuple):
@@ -216,10 +210,29 @@ def numba_available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
+class SrgbTable(NamedTuple):
+    """The sRGB outputs' codes: a 3x3 matrix, then the transfer function's by table (:func:`encode_table`), as
+    :func:`picamcal.output.colour.srgb_encoding` makes them.
+
+    Attributes
+    ----------
+    matrix : ndarray of float32 (3, 3)
+        To linear sRGB, which is clipped to 0..1.
+    base : ndarray of uint8 or uint16 (cells + 1,)
+        The code at the start of each of ``cells`` equal cells of 0..1 (a power of two), and at 1.
+    inside : ndarray of float32 (cells + 1,)
+        The value from which a cell's code is one more (at most one per cell), else infinity.
+    """
+
+    matrix: np.ndarray
+    base: np.ndarray
+    inside: np.ndarray
+
+
 def output_array(out: np.ndarray | None, height: int, width: int, dtype: DTypeLike = np.float32) -> np.ndarray:
     """``out`` if it can take the result (else OutputError), or a new array.
 
-    The result is the (H, W, 3) float32 image, or with ``dtype=np.uint16`` its codes, interleaved the same way.
+    The result is the (H, W, 3) float32 image, or its uint16 or uint8 codes, interleaved the same way.
 
     Examples
     --------
@@ -239,9 +252,9 @@ def output_array(out: np.ndarray | None, height: int, width: int, dtype: DTypeLi
 
 def _output_shape(height: int, width: int, dtype: DTypeLike) -> tuple[int, ...]:
     kind = np.dtype(dtype)
-    if kind in (np.float32, np.uint16):
+    if kind in (np.float32, np.uint16, np.uint8):
         return (height, width, 3)
-    raise ValueError(f"the corrected image is float32 or uint16 codes, not {kind}")
+    raise ValueError(f"the corrected image is float32, or uint16 or uint8 codes, not {kind}")
 
 
 def fits(out: Any, height: int, width: int, dtype: DTypeLike = np.float32) -> bool:
@@ -281,6 +294,28 @@ def encode_codes(rgb: np.ndarray, scale: float, out: np.ndarray) -> np.ndarray:
         values *= values.dtype.type(scale)
     np.clip(values, 0, _CODE_MAX, out=values)
     out[...] = np.rint(values, out=values)
+    return out
+
+
+def encode_table(rgb: np.ndarray, table: SrgbTable, out: np.ndarray) -> np.ndarray:
+    """Linear RGB rows (rows, W, 3) to codes in ``out`` through ``table``, in float32 as the kernels do.
+
+    ``v = clip((m0 r + m1 g) + m2 b, 0, 1)`` with a row ``m`` of the matrix, then ``code = base[c] + (v >=
+    inside[c])`` in the cell ``c = floor(v * cells)``; NaN gives 0.
+
+    Examples
+    --------
+    >>> from picamcal.output.colour import srgb_encoding
+    >>> encode_table(np.array([[[1.0, 0.5, 2.5]]]), srgb_encoding(), np.empty((1, 1, 3), np.uint8)).ravel()
+    array([231, 170, 255], dtype=uint8)
+    """
+    rgb, (matrix, base, inside) = np.asarray(rgb, dtype=np.float32), table
+    for p in range(3):
+        with np.errstate(invalid="ignore", over="ignore"):  # 0 * inf is NaN, which gives 0 all the same
+            v = (matrix[p, 0] * rgb[..., 0] + matrix[p, 1] * rgb[..., 1]) + matrix[p, 2] * rgb[..., 2]
+        np.fmin(np.fmax(v, np.float32(0), out=v), np.float32(1), out=v)  # fmax: NaN gives 0
+        cell = (v * np.float32(base.size - 1)).astype(np.intp)  # exact: the cells are a power of two
+        out[..., p] = base[cell] + (v >= inside[cell])
     return out
 
 
@@ -378,6 +413,7 @@ def correct_numpy(
     block_rows: int = NUMPY_BLOCK_ROWS,
     *,
     code_scale: float | None = None,
+    table: SrgbTable | None = None,
 ) -> np.ndarray:
     """The fused correction with numpy, block of rows by block of rows (same arithmetic as :func:`correct_numba`).
 
@@ -391,13 +427,13 @@ def correct_numpy(
         Where to write the result (C-contiguous, of the returned shape and type); a new array by default.
     block_rows : int
         Rows per block: temporaries scale with it.
-    code_scale : float, optional
-        Return uint16 codes ``round(value * code_scale)`` (:func:`encode_codes`; a power of two) instead of
-        float32, each block encoded as soon as it is corrected.
+    code_scale, table : float or SrgbTable, optional
+        Return codes instead of float32, each block encoded as soon as it is corrected: uint16 ``round(value *
+        code_scale)`` (:func:`encode_codes`; a power of two), or those of ``table`` (:func:`encode_table`).
 
     Returns
     -------
-    ndarray of float32 or, with ``code_scale``, uint16, shape (H, W, 3)
+    ndarray of float32, or of the codes' type, shape (H, W, 3)
 
     Examples
     --------
@@ -415,8 +451,8 @@ def correct_numpy(
     ((240, 320, 3), 1.0)
     """
     height, width = bayer.shape
-    out = output_array(out, height, width, np.float32 if code_scale is None else np.uint16)
-    block = None if code_scale is None else np.empty((min(block_rows, height), width, 3), dtype=np.float32)
+    out = output_array(out, height, width, _code_type(code_scale, table))
+    block = None if out.dtype == np.float32 else np.empty((min(block_rows, height), width, 3), dtype=np.float32)
     for y0 in range(0, height, block_rows):
         y1 = min(y0 + block_rows, height)
         rgb = out[y0:y1] if block is None else block[: y1 - y0]
@@ -424,9 +460,18 @@ def correct_numpy(
         _demosaic_block(buf, y0, fields.channels, rgb)
         if fields.matrices is not None:
             _unmix_block(rgb, y0, fields, fields.matrices)
-        if code_scale is not None:
+        if table is not None:
+            encode_table(rgb, table, out[y0:y1])
+        elif code_scale is not None:
             encode_codes(rgb, code_scale, out[y0:y1])
     return out
+
+
+def _code_type(code_scale: float | None, table: SrgbTable | None) -> np.dtype:
+    """The output's type: float32, uint16 for ``code_scale``, the table's codes' (one of them at most)."""
+    if table is not None and code_scale is not None:
+        raise ValueError("codes are either scaled (code_scale) or from a table, not both")
+    return np.dtype(np.float32 if code_scale is None else np.uint16) if table is None else table.base.dtype
 
 
 # ---------------------------------------------------------------------------------------------
@@ -449,18 +494,17 @@ def correct_numpy(
 
 @functools.cache
 def _numba_kernel():
-    """Compile (or load from numba's cache) the parallel kernel; numba is imported here only.
+    """Compile (or load from numba's cache) the parallel kernel and image encoder; numba is imported here only.
 
     The helpers become module globals rather than closure variables of the kernel: numba keys its
     disk cache of a closure on a pickle of the closure's variables, and a pickled dispatcher differs
     from one process to the next, so a kernel that closed over its helpers would never be reused.
     """
-    global _nb_flat_row, _nb_demosaic_pairs, _nb_merge, _nb_demosaic_row, _nb_unmix_row, _nb_interleave_row
-    global _nb_code, _nb_codes_row
+    global _nb_flat_row, _nb_demosaic_pairs, _nb_merge, _nb_demosaic_row, _nb_unmix_row, _nb_code, _nb_write_row
     import numba
 
     f05, f15, f2, f4, f5, f6, eighth = _F05, _F15, _F2, _F4, _F5, _F6, _EIGHTH
-    zero, code_max = np.float32(0.0), np.float32(_CODE_MAX)
+    zero, one, code_max = np.float32(0.0), np.float32(1.0), np.float32(_CODE_MAX)
     options = {"cache": True, "nogil": True, "error_model": "numpy"}
 
     @numba.njit(**options)
@@ -473,13 +517,9 @@ def _numba_kernel():
         if flat:
             i = iy[y]
             w0, w1, w2, w3 = wy[0, y], wy[1, y], wy[2, y], wy[3, y]
-            e0, e1, e2, e3 = white[2 * sy, i], white[2 * sy, i + 1], white[2 * sy, i + 2], white[2 * sy, i + 3]
-            o0, o1, o2, o3 = (
-                white[2 * sy + 1, i],
-                white[2 * sy + 1, i + 1],
-                white[2 * sy + 1, i + 2],
-                white[2 * sy + 1, i + 3],
-            )
+            even_white, odd_white = white[2 * sy], white[2 * sy + 1]
+            e0, e1, e2, e3 = even_white[i], even_white[i + 1], even_white[i + 2], even_white[i + 3]
+            o0, o1, o2, o3 = odd_white[i], odd_white[i + 1], odd_white[i + 2], odd_white[i + 3]
             for j in range(half):
                 even[j] = (np.float32(raw[2 * j]) - level0) / (w0 * e0[j] + w1 * e1[j] + w2 * e2[j] + w3 * e3[j])
                 odd[j] = (np.float32(raw[2 * j + 1]) - level1) / (w0 * o0[j] + w1 * o1[j] + w2 * o2[j] + w3 * o3[j])
@@ -574,57 +614,44 @@ def _numba_kernel():
                     m2 += u3[x] * a32
                     d[x] = m0 * red[x] + m1 * green[x] + m2 * blue[x]
 
-    @numba.njit(**options)
-    def _nb_interleave_row(rgb, out_row):
-        red, green, blue = rgb[0], rgb[1], rgb[2]
-        for x in range(red.shape[0]):
-            out_row[3 * x] = red[x]
-            out_row[3 * x + 1] = green[x]
-            out_row[3 * x + 2] = blue[x]
-
     @numba.njit(inline="always", error_model="numpy")
-    def _nb_code(value, scale):
-        # As encode_codes: NaN and negatives fail "> 0" and give 0; rint rounds half to even, as numpy's.
+    def _nb_code(value, scale, top):
+        # As encode_codes and encode_table: NaN and negatives fail "> 0" and give 0.
         v = value * scale
         v = v if v > zero else zero
-        v = v if v < code_max else code_max
-        return np.uint16(np.rint(v))
+        return v if v < top else top
 
     @numba.njit(**options)
-    def _nb_codes_row(rgb, scale, out_row):
-        red, green, blue = rgb[0], rgb[1], rgb[2]
-        for x in range(red.shape[0]):
-            out_row[3 * x] = _nb_code(red[x], scale)
-            out_row[3 * x + 1] = _nb_code(green[x], scale)
-            out_row[3 * x + 2] = _nb_code(blue[x], scale)
+    def _nb_write_row(red, green, blue, floats, scale, codes, matrix, base, inside, y):
+        # Row y of the output, interleaved: float32, scaled codes or a table's (NaN fails "> 0": 0, as encode_table).
+        if base.shape[0] > 0:
+            row, cells = codes[y], np.float32(base.shape[0] - 1)
+            for x in range(red.shape[0]):
+                r, g, b = red[x], green[x], blue[x]
+                for p in range(3):
+                    v = _nb_code(matrix[p, 0] * r + matrix[p, 1] * g + matrix[p, 2] * b, one, one)
+                    c = np.intp(v * cells)
+                    row[3 * x + p] = base[c] + (v >= inside[c])
+        elif scale > 0:  # rint rounds half to even, as numpy's
+            row = codes[y]
+            for x in range(red.shape[0]):
+                row[3 * x] = np.uint16(np.rint(_nb_code(red[x], scale, code_max)))
+                row[3 * x + 1] = np.uint16(np.rint(_nb_code(green[x], scale, code_max)))
+                row[3 * x + 2] = np.uint16(np.rint(_nb_code(blue[x], scale, code_max)))
+        else:
+            row = floats[y]
+            for x in range(red.shape[0]):
+                row[3 * x] = red[x]
+                row[3 * x + 1] = green[x]
+                row[3 * x + 2] = blue[x]
 
     @numba.njit(parallel=True, **options)
-    def kernel(
-        bayer,
-        black,
-        channels,
-        site_gains,
-        flat,
-        white,
-        white_y,
-        unmix,
-        matrices,
-        matrix_y,
-        matrix_x,
-        block_rows,
-        ring,
-        half_rows,
-        rgb,
-        mixed,
-        matrix_along,
-        out,
-        code_scale,
-        codes,
-    ):
-        height = bayer.shape[0]
-        wiy, wwy = white_y
-        miy, mwy = matrix_y
-        mfirst, mweights, mruns = matrix_x
+    def kernel(bayer, sites, white_field, matrix_field, block_rows, scratch, output):
+        height, (black, channels, site_gains) = bayer.shape[0], sites
+        flat, white, (wiy, wwy) = white_field
+        unmix, matrices, (miy, mwy), (mfirst, mweights, mruns) = matrix_field
+        ring, half_rows, rgb, mixed, matrix_along = scratch
+        floats, scale, codes, (matrix, base, inside) = output  # flat arrays: a tuple inside prange cannot be passed
         n_blocks = (height + block_rows - 1) // block_rows
         for block in numba.prange(n_blocks):
             t = numba.get_thread_id()
@@ -639,27 +666,42 @@ def _numba_kernel():
                 y = r - 2
                 if y < y0:
                     continue
-                _nb_demosaic_row(
-                    rows[(y + 3) % 5],
-                    rows[(y + 4) % 5],
-                    rows[y % 5],
-                    rows[(y + 1) % 5],
-                    rows[(y + 2) % 5],
-                    y,
-                    channels,
-                    half_rows[t],
-                    planar,
-                )
+                r0, r1, r2 = rows[(y + 3) % 5], rows[(y + 4) % 5], rows[y % 5]
+                _nb_demosaic_row(r0, r1, r2, rows[(y + 1) % 5], rows[(y + 2) % 5], y, channels, half_rows[t], planar)
                 result = planar
                 if unmix:
                     _nb_unmix_row(y, matrices, miy, mwy, mfirst, mweights, mruns, matrix_along[t], planar, unmixed)
                     result = unmixed
-                if code_scale > 0:
-                    _nb_codes_row(result, code_scale, codes[y])
-                else:
-                    _nb_interleave_row(result, out[y])
+                _nb_write_row(result[0], result[1], result[2], floats, scale, codes, matrix, base, inside, y)
 
-    return kernel
+    @numba.njit(parallel=True, **options)
+    def encoder(rgb, output):
+        floats, scale, codes, (matrix, base, inside) = output
+        for y in numba.prange(rgb.shape[0]):
+            _nb_write_row(rgb[y, :, 0], rgb[y, :, 1], rgb[y, :, 2], floats, scale, codes, matrix, base, inside, y)
+
+    return kernel, encoder
+
+
+def _numba_output(out: np.ndarray | None, shape: tuple[int, ...], code_scale: float | None, table: SrgbTable | None):
+    """``out`` (:func:`output_array`) and the numba kernels' output: float32 rows, scale, code rows, the table."""
+    out = output_array(out, shape[0], shape[1], _code_type(code_scale, table))
+    rows, none = out.reshape(shape[0], -1), np.empty((0, 0), np.float32)
+    table = table or SrgbTable(np.zeros((3, 3), np.float32), np.empty(0, np.uint16), np.empty(0, np.float32))
+    floats, codes = (rows, np.empty((0, 0), np.uint16)) if out.dtype == np.float32 else (none, rows)
+    return out, (floats, np.float32(code_scale or 0.0), codes, tuple(table))
+
+
+def _numba_threads() -> int:
+    """Set numba's threads for this call (:func:`kernel_threads`, at most those numba has started): how many."""
+    import numba
+
+    # numba's own runtime setting, not NUMBA_NUM_THREADS (numba re-reads its environment when it compiles and refuses
+    # a value that differs from the threads it has started); it holds for the calling thread only, so set it here.
+    # numba.config's attributes are set at import from the environment: not in its stubs.
+    threads = min(kernel_threads(), int(getattr(numba.config, "NUMBA_NUM_THREADS")))  # noqa: B009
+    numba.set_num_threads(threads)
+    return threads
 
 
 def correct_numba(
@@ -669,6 +711,7 @@ def correct_numba(
     block_rows: int = NUMBA_BLOCK_ROWS,
     *,
     code_scale: float | None = None,
+    table: SrgbTable | None = None,
 ) -> np.ndarray:
     """The fused correction as one parallel numba kernel (same arithmetic as :func:`correct_numpy`).
 
@@ -682,16 +725,16 @@ def correct_numba(
     bayer : ndarray of uint16, shape (H, W)
     fields : CorrectionFields
     out : ndarray, optional
-        float32 (H, W, 3), or uint16 (H, W, 3) with ``code_scale``.
+        float32 (H, W, 3), or of the codes' type with ``code_scale`` or ``table``.
     block_rows : int
         Rows per parallel work item.
-    code_scale : float, optional
-        Return uint16 codes ``round(value * code_scale)`` (:func:`encode_codes`; a power of two, for the
-        codes to be those of numpy bit for bit) instead of float32.
+    code_scale, table : float or SrgbTable, optional
+        Return codes instead of float32: uint16 ``round(value * code_scale)`` (:func:`encode_codes`; a power of
+        two, for the codes to be those of numpy bit for bit), or those of ``table`` (:func:`encode_table`).
 
     Returns
     -------
-    ndarray of float32 or, with ``code_scale``, uint16, shape (H, W, 3)
+    ndarray of float32, or of the codes' type, shape (H, W, 3)
 
     Raises
     ------
@@ -714,43 +757,44 @@ def correct_numba(
     """
     import numba
 
-    kernel = _numba_kernel()
-    height, width = bayer.shape
-    out = output_array(out, height, width, np.float32 if code_scale is None else np.uint16)
-    # numba's own runtime setting, not NUMBA_NUM_THREADS (numba re-reads its environment when it compiles and refuses
-    # a value that differs from the threads it has started); it holds for the calling thread only, so set it here.
-    # numba.config sets its attributes at import from the environment, so they are not in its stubs.
-    threads = min(kernel_threads(), int(getattr(numba.config, "NUMBA_NUM_THREADS")))  # noqa: B009
-    numba.set_num_threads(threads)
+    kernel, _ = _numba_kernel()
+    out, output = _numba_output(out, bayer.shape, code_scale, table)
+    threads, width = _numba_threads(), bayer.shape[1]
     half = width // 2
     white = np.zeros((4, 4, 4), np.float32) if fields.white is None else fields.white
     matrices = np.zeros((9, 4, 4), np.float32) if fields.matrices is None else fields.matrices
-    if code_scale is None:
-        floats, codes, scale = out.reshape(height, 3 * width), np.empty((0, 0), np.uint16), 0.0
-    else:
-        floats, codes, scale = np.empty((0, 0), np.float32), out.reshape(height, 3 * width), code_scale
+    scratch = tuple(
+        np.empty((threads, *shape), dtype=np.float32)
+        for shape in ((5, 2, half + 2), (6, half), (3, width), (3, width), (9, matrices.shape[2]))
+    )
     # One block at a time to whichever thread is free: a core busy with other work then takes fewer blocks.
     with numba.parallel_chunksize(1):
         kernel(
             np.ascontiguousarray(bayer, dtype=np.uint16),
-            fields.black,
-            fields.channels,
-            fields.site_gains,
-            fields.white is not None,
-            white,
-            tuple(fields.white_rows[:2]),
-            fields.matrices is not None,
-            matrices,
-            tuple(fields.matrix_rows[:2]),
-            tuple(fields.matrix_cols),
+            (fields.black, fields.channels, fields.site_gains),
+            (fields.white is not None, white, tuple(fields.white_rows[:2])),
+            (fields.matrices is not None, matrices, tuple(fields.matrix_rows[:2]), tuple(fields.matrix_cols)),
             block_rows,
-            np.empty((threads, 5, 2, half + 2), dtype=np.float32),
-            np.empty((threads, 6, half), dtype=np.float32),
-            np.empty((threads, 3, width), dtype=np.float32),
-            np.empty((threads, 3, width), dtype=np.float32),
-            np.empty((threads, 9, matrices.shape[2]), dtype=np.float32),
-            floats,
-            np.float32(scale),
-            codes,
+            scratch,
+            output,
         )
+    return out
+
+
+def encode_numba(
+    rgb: np.ndarray, out: np.ndarray | None = None, *, code_scale: float | None = None, table: SrgbTable | None = None
+) -> np.ndarray:
+    """A float32 (H, W, 3) image's codes (:func:`encode_codes` or :func:`encode_table`) by a parallel numba loop.
+
+    Examples
+    --------
+    >>> rgb = np.array([[[1.0, 0.5, 2.5]]], np.float32)
+    >>> encode_numba(rgb, code_scale=32768).ravel()
+    array([32768, 16384, 65535], dtype=uint16)
+    """
+    _, encoder = _numba_kernel()
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    out, output = _numba_output(out, rgb.shape, code_scale, table)
+    _numba_threads()
+    encoder(rgb, output)
     return out

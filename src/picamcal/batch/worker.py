@@ -34,6 +34,7 @@ from ..kernels import fits
 from ..limits import SizeBound
 from ..modes import Mode
 from ..output import SRGB_FORMATS, ColourMatrix, camera_to_srgb, write_corrected
+from ..output.colour import srgb_encoding
 from ..output.ome_zarr import write_frame
 from ..output.provenance import read_record
 from ..raw import RawImage, flat_field_gain_map, read_raw, write_dng, write_linear_dng
@@ -388,26 +389,35 @@ class _Stages:
 
     def correct(self, image: RawImage | ProcessedImage, slot: Slot) -> _Corrected:
         """The corrected image (into the slot's array when the kernel can reuse it), the metadata its colour
-        matrix comes from (the raw's; none for processed images), and what the output records of how it was made
-        (:func:`picamcal.batch.record.made_with`)."""
+        matrix comes from (the raw's; none for processed images), what the output records of how it was made
+        (:func:`picamcal.batch.record.made_with`), and the sRGB formats' colour matrix (once per frame: its
+        warnings too)."""
         settings, cal = self.settings, self.calibration
+        srgb = settings.output_format in SRGB_FORMATS
         if isinstance(image, ProcessedImage):
-            return _correct_processed(image, cal, settings), {}, made_with(settings.record)
+            matrix = _colour_matrix(settings, {}) if srgb else None
+            return _correct_processed(image, cal, settings), {}, made_with(settings.record), matrix
         made = made_with(settings.record, image)
+        matrix = _colour_matrix(settings, image.metadata) if srgb else None
         if settings.binned:
             geometry = raw_geometry(image, **settings.geometry) if any(settings.geometry.values()) else None
-            return correct(image, cal, mode=settings.mode, binned=True, geometry=geometry), image.metadata, made
+            rgb = correct(image, cal, mode=settings.mode, binned=True, geometry=geometry)
+            return rgb, image.metadata, made, matrix
         if settings.output_format == "dng-gainmap":  # the frame goes out unchanged, the flat field as opcodes
-            return image, image.metadata, made
-        # uint16-tiff codes straight from the kernel: no float32 image at full resolution to encode afterwards
-        dtype = np.uint16 if settings.output_format == "uint16-tiff" else np.float32
+            return image, image.metadata, made, matrix
+        # uint16-tiff and sRGB codes straight from the kernel: no float32 image at full resolution to encode after
+        encoding = None
+        if matrix is not None:
+            encoding = srgb_encoding(matrix, bits=16 if settings.output_format == "srgb-png16" else 8)
+        dtype = np.dtype(np.uint16 if settings.output_format == "uint16-tiff" else np.float32)
+        dtype = dtype if encoding is None else encoding.base.dtype
         out = slot.array if fits(slot.array, image.height, image.width, dtype) else None  # an earlier batch's size
         geometry = raw_geometry(image, **settings.geometry) if any(settings.geometry.values()) else None
-        slot.array = correct(image, cal, mode=settings.mode, out=out, dtype=dtype, geometry=geometry)
-        return slot.array, image.metadata, made
+        slot.array = correct(image, cal, settings.mode, out=out, dtype=dtype, encoding=encoding, geometry=geometry)
+        return slot.array, image.metadata, made, matrix
 
     def write(self, job: Job, corrected: _Corrected) -> None:
-        image, source_metadata, made = corrected
+        image, source_metadata, made, matrix = corrected
         if job.target is not None:
             claims.touch(job.target)  # still at work on it, for the runs of other machines
         if isinstance(image, RawImage):  # dng-gainmap: the flat field at the frame's own mode
@@ -417,12 +427,12 @@ class _Stages:
         elif self.settings.output_format == "linear-dng":
             _write_linear_dng(self.settings, job, image, {**source_metadata, MADE_WITH: made}, self.calibration)
         else:
-            _write(self.settings, job, image, source_metadata, made)
+            _write(self.settings, job, image, made, matrix)
 
 
-#: What the correcting stage hands the writing one: the image (a raw frame for dng-gainmap), the metadata of its
-#: colour, and the output's ``made_with`` record.
-_Corrected = tuple[np.ndarray | RawImage, dict[str, Any], dict[str, Any]]
+#: What the correcting stage hands the writing one: the image (a raw frame for dng-gainmap; the codes of the sRGB
+#: formats), the metadata of its colour, the output's ``made_with`` record, and the sRGB formats' colour matrix.
+_Corrected = tuple[np.ndarray | RawImage, dict[str, Any], dict[str, Any], ColourMatrix | None]
 
 
 def frame_bound(cal: Calibration) -> SizeBound:
@@ -458,9 +468,7 @@ def _tuning(path: str) -> dict[str, Any]:
     return _cached(("tuning", path), lambda: load_tuning(path))
 
 
-def _write(
-    settings: Settings, job: Job, rgb: np.ndarray, source_metadata: dict[str, Any], made: dict[str, Any]
-) -> None:
+def _write(settings: Settings, job: Job, rgb: np.ndarray, made: dict[str, Any], matrix: ColourMatrix | None) -> None:
     if settings.zarr_array is not None:
         write_frame(settings.zarr_array, job.index, rgb, settings.mosaic, source=job.source)
         return
@@ -478,7 +486,7 @@ def _write(
         rgb,
         settings.output_format,
         info,
-        colour_matrix=_colour_matrix(settings, source_metadata) if settings.output_format in SRGB_FORMATS else None,
+        colour_matrix=matrix,
         overwrite=settings.overwrite,
         compression=settings.compression,
     )

@@ -1,8 +1,10 @@
 """Colour for the sRGB outputs: the 3x3 matrix from a corrected image's RGB to linear sRGB, and the encoding.
 
 :func:`camera_to_srgb` picks the best matrix known for a raw image (a tuning file's, the image's own, a DNG's);
-:func:`encode_srgb` applies it, places the white reference at :data:`SRGB_WHITE_LEVEL` and applies the sRGB
-transfer function (IEC 61966-2-1).
+:func:`srgb_encoding` makes of it the correction kernels' encoding to sRGB codes (the matrix, the white reference
+at :data:`SRGB_WHITE_LEVEL`, the sRGB transfer function of IEC 61966-2-1 by a table), with which
+``picamcal.correct(..., encoding=...)`` writes the codes straight from the raw frame; :func:`encode_srgb` applies
+the same compiled code to a corrected float image.
 """
 
 from __future__ import annotations
@@ -17,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from ..ckernel import encode_image
 from ..errors import PicamcalError, PicamcalWarning
+from ..kernels import SrgbTable
 
 #: Linear sRGB level of the white reference in the sRGB formats: 25 % headroom above it before clipping.
 SRGB_WHITE_LEVEL = 0.8
@@ -202,6 +206,46 @@ def srgb_transfer(linear: np.ndarray) -> np.ndarray:
     )
 
 
+def srgb_encoding(
+    colour_matrix: ColourMatrix | None = None, *, white_level: float = SRGB_WHITE_LEVEL, bits: int = 8
+) -> SrgbTable:
+    """The sRGB formats' encoding, for the correction kernels: matrix, white level, clip, transfer function, round.
+
+    ``code = round((2**bits - 1) * srgb_transfer(clip(white_level * matrix @ rgb, 0, 1)))``, NaN as 0, with the
+    matrix product in float32 (as the kernels compute, in the order ``(m0 r + m1 g) + m2 b``) and the rest exact:
+    the transfer function and its rounding by a table (the code at the start of each of 4096 cells of 0..1 for
+    8 bits, 2**20 for 16, and the one threshold inside each). Give it to ``picamcal.correct(..., encoding=)``
+    (the codes straight from the raw frame) or :func:`picamcal.ckernel.encode_image` (a float image's).
+
+    Parameters
+    ----------
+    colour_matrix : ColourMatrix, optional
+        To linear sRGB (:func:`camera_to_srgb`); default the identity.
+    white_level : float
+        The linear sRGB level of the white reference (1.0 in the corrected image).
+    bits : {8, 16}
+        uint8 codes (``srgb-png``, ``srgb-jpeg``) or uint16 (``srgb-png16``).
+
+    Returns
+    -------
+    SrgbTable
+        The matrix ``white_level * colour_matrix`` in float32, and the tables (made once per process).
+
+    Examples
+    --------
+    >>> from picamcal.simulate import make_camera, simulate_references
+    >>> refs = simulate_references(make_camera("imx219", size=(320, 240)), seed=1)
+    >>> cal = picamcal.calibrate(**refs)
+    >>> codes = picamcal.correct(refs["white"], cal, "flat", encoding=srgb_encoding(bits=8))
+    >>> codes.dtype, int(np.median(codes))  # the white reference at its code, 231
+    (dtype('uint8'), 231)
+    """
+    if bits not in (8, 16):
+        raise ValueError("bits is 8 or 16")
+    matrix = np.eye(3) if colour_matrix is None else colour_matrix.matrix
+    return SrgbTable(np.asarray(white_level * matrix, dtype=np.float32), *_float32_table(bits))
+
+
 def encode_srgb(
     rgb: np.ndarray,
     colour_matrix: ColourMatrix | None = None,
@@ -211,7 +255,11 @@ def encode_srgb(
 ) -> np.ndarray:
     """Linear RGB (white reference 1.0) to sRGB code values: matrix, white level, clip, transfer function.
 
-    ``code = round((2**bits - 1) * srgb_transfer(clip(white_level * matrix @ rgb, 0, 1)))``; NaN gives 0.
+    ``code = round((2**bits - 1) * srgb_transfer(clip(white_level * matrix @ rgb, 0, 1)))``; NaN gives 0. A
+    float32 image (what :func:`picamcal.correct` returns) goes through the correction kernel's own compiled code
+    (:func:`picamcal.ckernel.encode_image` with :func:`srgb_encoding`), the matrix product in float32: its codes are
+    those the kernel writes, bit for bit. Another type keeps the product in float64 (numpy, a strip of rows at a
+    time); the two differ by one code at most, where a value lies within float32's rounding of a code's threshold.
 
     Parameters
     ----------
@@ -232,19 +280,17 @@ def encode_srgb(
     >>> encode_srgb(np.ones((1, 1, 3), np.float32))
     array([[[231, 231, 231]]], dtype=uint8)
     """
-    if bits not in (8, 16):
-        raise ValueError("bits is 8 or 16")
-    rgb = check_rgb(rgb)
-    matrix = np.eye(3) if colour_matrix is None else colour_matrix.matrix
-    to_linear = (white_level * matrix).T
-    out = np.empty(rgb.shape, dtype=np.uint8 if bits == 8 else np.uint16)
+    encoding, rgb = srgb_encoding(colour_matrix, white_level=white_level, bits=bits), check_rgb(rgb)
+    if rgb.dtype == np.float32:
+        return encode_image(rgb, table=encoding)
+    to_linear = (white_level * (np.eye(3) if colour_matrix is None else colour_matrix.matrix)).T
+    out = np.empty(rgb.shape, dtype=encoding.base.dtype)
     base, inside = _code_table(bits)
-    cells = len(base) - 1
     for rows in strips(rgb.shape):
         linear = rgb[rows].astype(float) @ to_linear
         # fmax and fmin take the number where the other is NaN: NaN gives 0, and +-inf clip as any value
         np.fmin(np.fmax(linear, 0.0, out=linear), 1.0, out=linear)
-        cell = (linear * cells).astype(np.intp)  # exact: cells is a power of two
+        cell = (linear * (len(base) - 1)).astype(np.intp)  # exact: the cells are a power of two
         out[rows] = base[cell] + (linear >= inside[cell])
     return out
 
@@ -281,6 +327,19 @@ def _code_table(bits: int) -> tuple[np.ndarray, np.ndarray]:
     inside = np.full(cells + 1, np.inf)
     inside[cell[within]] = thresholds[within]
     return base, inside
+
+
+@functools.cache
+def _float32_table(bits: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_code_table` for float32 values, read-only: each threshold rounded up to a float32, the smallest that
+    reaches it, so that ``v >= inside`` holds for a float32 ``v`` exactly when it does in float64."""
+    base, inside = _code_table(bits)
+    inside32 = inside.astype(np.float32)
+    low = inside32 < inside
+    inside32[low] = np.nextafter(inside32[low], np.float32(np.inf))
+    for table in (base, inside32):
+        table.flags.writeable = False
+    return base, inside32
 
 
 def check_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -320,6 +379,7 @@ __all__ = [
     "color_matrix_to_srgb",
     "encode_srgb",
     "forward_matrix_to_srgb",
+    "srgb_encoding",
     "srgb_transfer",
     "strips",
 ]

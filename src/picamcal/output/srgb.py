@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from .._atomic import atomic_path
-from .colour import NO_MATRIX, SRGB_WHITE_LEVEL, ColourMatrix, encode_srgb, srgb_transfer
+from .colour import NO_MATRIX, SRGB_WHITE_LEVEL, ColourMatrix, check_rgb, encode_srgb, srgb_transfer
 from .encoders import write_jpeg, write_png
 
 #: The colour-managed formats (they need a colour matrix), and the file name suffix of each.
@@ -44,7 +44,11 @@ def write_srgb(
 ) -> Path:
     """Write a corrected image as one of the :data:`SRGB_FORMATS`, atomically (:func:`picamcal.output.write_corrected`).
 
-    ``metadata`` gains the encoding, the white level and code, and the colour matrix and its source.
+    ``rgb`` is the corrected float image, or its codes already made (uint8 for ``srgb-png`` and ``srgb-jpeg``,
+    uint16 for ``srgb-png16``: ``picamcal.correct(..., encoding=srgb_encoding(colour_matrix, white_level=...,
+    bits=...))``), written as they are; ``colour_matrix`` and ``white_level`` are then those they were made with,
+    for the metadata. ``metadata`` gains the encoding, the white level and code, and the colour matrix and its
+    source.
 
     Examples
     --------
@@ -52,10 +56,16 @@ def write_srgb(
     >>> path = write_srgb("white.jpg", np.ones((8, 8, 3), np.float32), "srgb-jpeg")
     >>> json.loads(Image.open(path).getexif()[0x010E])["picamcal"]["white_code"]
     231
+    >>> codes = np.full((8, 8, 3), 231, np.uint8)  # as picamcal.correct(..., encoding=srgb_encoding()) gives
+    >>> Image.open(write_srgb("codes.png", codes, "srgb-png")).getpixel((0, 0))
+    (231, 231, 231)
     """
     if output_format not in SRGB_FORMATS:
         raise ValueError(f"{output_format!r} is not an sRGB format ({', '.join(SRGB_FORMATS)})")
-    bits = 16 if output_format == "srgb-png16" else 8
+    bits, rgb = (16 if output_format == "srgb-png16" else 8), check_rgb(rgb)
+    code_type = np.dtype(np.uint8 if bits == 8 else np.uint16)
+    if rgb.dtype.kind in "ui" and rgb.dtype != code_type:
+        raise ValueError(f"{output_format} is written from {code_type} codes or a float image, not {rgb.dtype}")
     colour_matrix = colour_matrix if colour_matrix is not None else ColourMatrix(np.eye(3), NO_MATRIX)
     info = dict(metadata or {})
     info.update(
@@ -65,7 +75,10 @@ def write_srgb(
         colour_matrix=np.round(colour_matrix.matrix, 6).tolist(),
         colour_matrix_source=colour_matrix.source,
     )
-    codes = encode_srgb(rgb, colour_matrix, white_level=white_level, bits=bits)
+    if rgb.dtype == code_type:
+        codes = np.ascontiguousarray(rgb)
+    else:
+        codes = encode_srgb(rgb, colour_matrix, white_level=white_level, bits=bits)
     description = json.dumps({"picamcal": info})
     path = Path(path)
     with atomic_path(path, overwrite=overwrite) as tmp:

@@ -62,8 +62,11 @@ def write_corrected(
     path : path-like
         The file to write (its suffix is not checked: :data:`OUTPUT_SUFFIXES` has the usual ones).
     rgb : ndarray (H, W, 3)
-        Corrected linear RGB, the white reference at 1.0; for ``uint16-tiff`` also its codes, uint16 (H, W, 3),
-        as ``picamcal.correct(..., dtype=np.uint16)`` gives them (written as they are).
+        Corrected linear RGB, the white reference at 1.0; or its codes, written as they are: for ``uint16-tiff``
+        uint16 (H, W, 3) as ``picamcal.correct(..., dtype=np.uint16)`` gives them, for the sRGB formats uint8
+        (``srgb-png``, ``srgb-jpeg``) or uint16 (``srgb-png16``) as ``picamcal.correct(...,
+        encoding=srgb_encoding(colour_matrix, white_level=white_level, bits=8 or 16))`` gives them
+        (:func:`picamcal.output.colour.srgb_encoding`; the colour matrix and white level are then recorded).
     output_format : str
         One of :data:`OUTPUT_FORMATS`.
     metadata : mapping, optional
