@@ -334,10 +334,20 @@ class CameraData:
         compressor's compilation), so that frames come at the mode's rate from the start, as on a Pi."""
         mode = config.sensor_mode
         assert mode is not None and self.isp is not None
-        self.sensor.capture(mode, 1000.0, 1.0, 0, *self.sensor_flips, noise=False)  # the response as read out
+        frame = self.sensor.capture(mode, 1000.0, 1.0, 0, *self.sensor_flips, noise=False)  # the response as read out
         self.isp.lens_shading(self.ipa.ct)
         formats = [str(cfg.pixel_format) for cfg in config]
         warm_up(any(f.endswith("_CSI2P") for f in formats), any(f.endswith("_PISP_COMP1") for f in formats))
+        # One frame through each configured stream into scratch buffers: every kernel compiled for the exact types
+        # and layouts the frames will use (numba compiles anew for each), not while the first frame is awaited.
+        raw = self.streams[0]._configuration if self.streams[0] in self.active_streams else None
+        if raw is not None:
+            layout = Layout(str(raw.pixel_format), raw.size.width, raw.size.height, raw.stride, raw.frame_size)
+            scratch = np.zeros(raw.frame_size, np.uint8).reshape(layout.height, -1)
+            encode_raw(frame, layout, mode.bit_depth, scratch)
+        for _, plan in self.plans:
+            scratch = np.zeros(plan.layout.frame_size, np.uint8)
+            self.isp.render(frame, self.ipa.ct, plan, self.ipa.colour_gains(), 1.0, self.ipa.ccm(), scratch)
 
     def _native_crop(self, crop: Rectangle) -> Rectangle:
         """``scaleIspCrop``: an ISP crop in sensor coordinates."""
