@@ -15,13 +15,15 @@ import dataclasses
 import importlib
 import sys
 import tracemalloc
+import warnings
 
 import numpy as np
 import pytest
 
-from picamcal import calibrate, correct
+from picamcal import PicamcalWarning, calibrate, correct
 from picamcal.bayer import bin_centres
-from picamcal.correct import correction_fields, demosaic
+from picamcal.ckernel import c_available, correct_c
+from picamcal.correct import CLIPPED_WARNING_FRACTION, correction_fields, demosaic
 from picamcal.errors import OutputError
 from picamcal.interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
 from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available
@@ -35,6 +37,7 @@ FUSED_VS_REFERENCE = 2e-5
 
 correct_module = importlib.import_module("picamcal.correct")  # the package's `correct` is the function
 needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is not installed")
+needs_c = pytest.mark.skipif(not c_available(), reason="the C kernel cannot be compiled here")
 
 
 def _scene(sensor: str, pattern: str, size: tuple[int, int], bin_size: int = 16):
@@ -243,3 +246,35 @@ def test_black_level_is_per_site():
     np.testing.assert_allclose(
         correct(shifted, cal, "centre", engine="numpy"), correct(target, cal, "centre", engine="numpy"), atol=1e-6
     )
+
+
+@pytest.mark.parametrize(
+    "engine", ["numpy", "reference", pytest.param("numba", marks=needs_numba), pytest.param("c", marks=needs_c)]
+)
+@pytest.mark.parametrize("share", [0.3, 0.005])
+def test_clipped_pixels_are_warned_of_from_every_engine_the_c_kernel_counting_as_it_reads(engine, share):
+    # The C kernel counts the samples at the white level as it reads the mosaic (no pass of its own over the frame):
+    # the same count as numpy's, so the same warning, naming the file, and none for a few highlights (0.5 %).
+    cal, target = _scene("imx219", "RGGB", (120, 80))
+    bayer = target.bayer.copy()
+    bayer[np.random.default_rng(1).random(bayer.shape) < share] = target.white_level
+    clipped = dataclasses.replace(target, bayer=bayer, metadata={**target.metadata, "path": "scan.dng"})
+    expected = int(np.count_nonzero(bayer >= target.white_level))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        correct(clipped, cal, "centre", engine=engine)
+    ours = [w for w in caught if issubclass(w.category, PicamcalWarning)]
+    messages = [str(w.message) for w in ours]
+    if share < CLIPPED_WARNING_FRACTION:
+        assert messages == []
+    else:
+        assert messages == [
+            f"scan.dng: {100 * expected / bayer.size:.3g} % of its pixels are at the white level "
+            f"(1023): clipped, they cannot be corrected; reduce the exposure"
+        ]
+        assert ours[0].filename == __file__  # said where correct was called
+    if engine == "c":
+        count = np.zeros(1, np.int64)
+        fields = correction_fields(cal, "centre", target.height, target.width)
+        correct_c(bayer, fields, clipped=(target.white_level, count))
+        assert count[0] == expected

@@ -84,6 +84,8 @@ typedef struct {
     picamcal_output output;
     int64_t block_rows;
     int64_t threads;
+    int64_t clip_level;               /* mosaic samples at or above it are counted into clipped */
+    int64_t clipped;                  /* written by picamcal_correct */
 } picamcal_job;
 
 /* A float32 image to encode; mirrored by picamcal.ckernel._EncodeJob. */
@@ -410,13 +412,15 @@ static void unmix_chunk(const picamcal_job *job, const float *restrict along, in
 typedef struct {
     const void *job;
     int64_t n_blocks;
-    atomic_llong next; /* the next block to hand out */
+    atomic_llong next;    /* the next block to hand out */
+    atomic_llong counted; /* mosaic samples at or above the clip level, of the blocks done */
 } shared_work;
 
 /* Run `work` on `threads` threads (the calling one among them) until the blocks are handed out. 0 on success;
  * -1 when no thread could allocate its rows (out of memory), in which case the output is incomplete. */
-static int run_threads(void *(*work)(void *), const void *job, int64_t height, int64_t block_rows, int64_t threads) {
-    shared_work shared = {job, (height + block_rows - 1) / block_rows, 0};
+static int run_threads(void *(*work)(void *), const void *job, int64_t height, int64_t block_rows, int64_t threads,
+                       int64_t *counted) {
+    shared_work shared = {job, (height + block_rows - 1) / block_rows, 0, 0};
     threads = threads < shared.n_blocks ? threads : shared.n_blocks;
     pthread_t *ids = threads > 1 ? malloc(sizeof(pthread_t) * (size_t)(threads - 1)) : NULL;
     int64_t started = 0;
@@ -431,6 +435,7 @@ static int run_threads(void *(*work)(void *), const void *job, int64_t height, i
         pthread_join(ids[t], NULL);
     }
     free(ids);
+    *counted = atomic_load(&shared.counted);
     return atomic_load(&shared.next) >= shared.n_blocks ? 0 : -1;
 }
 
@@ -446,6 +451,9 @@ static void *correct_blocks(void *arg) {
     }
     float *ring = scratch, *rgb = ring + ring_size, *mixed = rgb + 3 * PLANE, *along = mixed + 3 * PLANE;
     const float *result = job->matrices ? mixed : rgb;
+    const int count = job->clip_level <= 65535; /* a level past every code counts nothing */
+    const uint16_t clip_level = (uint16_t)(count ? job->clip_level : 0);
+    int64_t clipped = 0;
     for (;;) {
         const int64_t block = atomic_fetch_add(&shared->next, 1);
         if (block >= shared->n_blocks) {
@@ -466,6 +474,10 @@ static void *correct_blocks(void *arg) {
                 ring + ((y + 3) % 5) * 2 * stride, ring + ((y + 4) % 5) * 2 * stride, ring + (y % 5) * 2 * stride,
                 ring + ((y + 1) % 5) * 2 * stride, ring + ((y + 2) % 5) * 2 * stride,
             };
+            const uint16_t *restrict raw = job->bayer + y * width; /* read two rows ago: in the cache */
+            for (int64_t x = 0; count && x < width; x++) {
+                clipped += raw[x] >= clip_level;
+            }
             int64_t run = 0;
             if (job->matrices) {
                 matrix_along_y(job, y, along);
@@ -481,12 +493,14 @@ static void *correct_blocks(void *arg) {
         }
     }
     free(scratch);
+    atomic_fetch_add(&shared->counted, clipped);
     return NULL;
 }
 
-/* Correct the frame with job->threads threads (the calling one among them): 0, or -1 when out of memory. */
-int picamcal_correct(const picamcal_job *job) {
-    return run_threads(correct_blocks, job, job->height, job->block_rows, job->threads);
+/* Correct the frame with job->threads threads (the calling one among them), and count the mosaic's samples at or
+ * above job->clip_level into job->clipped: 0, or -1 when out of memory. */
+int picamcal_correct(picamcal_job *job) {
+    return run_threads(correct_blocks, job, job->height, job->block_rows, job->threads, &job->clipped);
 }
 
 /* ------------------------------------------------------------------------------------------------ encoding */
@@ -512,5 +526,6 @@ static void *encode_blocks(void *arg) {
 
 /* Encode a float32 (height, width, 3) image as job->output says, on job->threads threads: 0. */
 int picamcal_encode(const picamcal_encode_job *job) {
-    return run_threads(encode_blocks, job, job->height, job->block_rows, job->threads);
+    int64_t counted;
+    return run_threads(encode_blocks, job, job->height, job->block_rows, job->threads, &counted);
 }

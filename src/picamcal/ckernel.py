@@ -143,6 +143,8 @@ class _Job(ctypes.Structure):
         ("output", _Output),
         ("block_rows", ctypes.c_int64),
         ("threads", ctypes.c_int64),
+        ("clip_level", ctypes.c_int64),
+        ("clipped", ctypes.c_int64),
     ]
 
 
@@ -389,6 +391,7 @@ def correct_c(
     *,
     code_scale: float | None = None,
     table: SrgbTable | None = None,
+    clipped: tuple[int, np.ndarray] | None = None,
 ) -> np.ndarray:
     """The fused correction with the compiled C kernel (same arithmetic as :func:`picamcal.kernels.correct_numpy`).
 
@@ -410,6 +413,9 @@ def correct_c(
         Return codes instead of float32: uint16 ``round(value * code_scale)``
         (:func:`picamcal.kernels.encode_codes`; a power of two, for the codes to be those of numpy bit for bit),
         or those of ``table`` (:func:`picamcal.kernels.encode_table`).
+    clipped : (level, count), optional
+        Count the mosaic's samples at or above ``level`` (its white level) into ``count[0]``, an int64 array, as the
+        kernel reads them (:func:`picamcal.correct.warn_if_clipped` without a pass of its own over the frame).
 
     Returns
     -------
@@ -498,9 +504,12 @@ def correct_c(
         output=output,
         block_rows=block_rows,
         threads=kernel_threads(),
+        clip_level=65536 if clipped is None else min(max(int(clipped[0]), 0), 65536),
     )
     if library.picamcal_correct(ctypes.byref(job)) != 0:
         raise MemoryError("the C kernel's threads could not allocate their rows")
+    if clipped is not None:
+        clipped[1][0] = job.clipped
     return keep[0]
 
 

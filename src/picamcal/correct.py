@@ -258,14 +258,19 @@ def warn_if_clipped(raw: RawImage) -> float:
     (0.5, 'scan.dng: 50 % of its pixels are at the white level (1023): clipped, they cannot be corrected; ...')
     """
     fraction = int(np.count_nonzero(raw.bayer >= raw.white_level)) / raw.bayer.size
+    _warn_clipped(raw, fraction, stacklevel=4)
+    return fraction
+
+
+def _warn_clipped(raw: RawImage, fraction: float, stacklevel: int) -> None:
+    """:func:`warn_if_clipped`'s warning, for a ``fraction`` of clipped pixels counted already (by the C kernel)."""
     if fraction > CLIPPED_WARNING_FRACTION:
         warnings.warn(
             f"{raw.source}: {100 * fraction:.3g} % of its pixels are at the white level ({raw.white_level}): clipped, "
             "they cannot be corrected; reduce the exposure",
             PicamcalWarning,
-            stacklevel=3,
+            stacklevel=stacklevel,
         )
-    return fraction
 
 
 def choose_mode(calibration: Calibration, mode: str | Mode | None = None) -> Mode:
@@ -387,7 +392,8 @@ def correct(
     calibration = calibration_for_raw(calibration, raw, geometry)
     matrices = calibration.matrices(mode)
     raw = with_known_black_level(raw, calibration)
-    warn_if_clipped(raw)
+    if binned or engine not in ("auto", "c"):  # the C kernel counts the clipped pixels as it reads them
+        warn_if_clipped(raw)
     if binned:
         if out is not None or kind != np.float32:
             raise ValueError("out, dtype and encoding take a full-resolution image; binned=True returns float32")
@@ -417,11 +423,17 @@ def correct(
     scale = UINT16_WHITE if to_codes else None
     if engine in ("auto", "c"):
         try:
-            return correct_c(raw.bayer, fields, out, code_scale=scale, table=encoding)
+            clipped = np.zeros(1, np.int64)
+            result = correct_c(
+                raw.bayer, fields, out, code_scale=scale, table=encoding, clipped=(raw.white_level, clipped)
+            )
+            _warn_clipped(raw, int(clipped[0]) / raw.bayer.size, stacklevel=3)
+            return result
         except KernelBuildError:
             if engine == "c":
                 raise
             # No C compiler, or it failed (remembered, not tried again): numba's or numpy's path gives the same.
+            warn_if_clipped(raw)
     if engine == "numba" or (engine == "auto" and numba_available()):
         try:
             return correct_numba(raw.bayer, fields, out, code_scale=scale, table=encoding)
