@@ -84,7 +84,8 @@ def check_codes(codes: np.ndarray, dtypes: Sequence[type] = (np.uint8, np.uint16
 
 
 def parallel_map(fn: Callable[[int], _T], count: int, threads: int | None = None) -> Iterator[_T]:
-    """``fn(0), fn(1), ... fn(count - 1)`` in order, computed on ``threads`` threads (None: every kernel thread).
+    """``fn(i)`` for each ``i`` in ``range(count)``, in order, computed on ``threads`` threads (None: every
+    kernel thread).
 
     The calls run in a pool of threads when there is more than one (numpy's and zlib's work releases the GIL), at
     most twice as many calls under way as threads, so that results wait only briefly for the caller; in this thread
