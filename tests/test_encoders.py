@@ -266,8 +266,11 @@ def test_a_profile_over_one_segment_is_split_as_pillow_splits_it(monkeypatch):
 
 
 # --------------------------------------------------------------------------------------------------- uint16 codes
+@pytest.mark.parametrize("c_kernel", ["built", "absent"])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_uint16_codes_are_the_kernels_codes_on_any_number_of_threads(dtype):
+def test_uint16_codes_are_the_kernels_codes_on_any_number_of_threads(dtype, c_kernel, request):
+    if c_kernel == "absent":  # float32 images are converted by the C kernel where it is built, else by numpy
+        request.getfixturevalue("no_c_kernel")
     rng = np.random.default_rng(2)
     rgb = (rng.random((123, 517, 3)) * 2.2 - 0.1).astype(dtype)
     edges = [np.nan, np.inf, -np.inf, np.finfo(dtype).max, -np.finfo(dtype).max, 0.5 / UINT16_WHITE,

@@ -544,9 +544,10 @@ def encode_c(
     code_scale: float | None = None,
     table: SrgbTable | None = None,
     block_rows: int = ENCODE_BLOCK_ROWS,
+    threads: int | None = None,
 ) -> np.ndarray:
-    """A float32 (H, W, 3) image's codes with the compiled library, on
-    :func:`picamcal.kernels.kernel_threads` threads: those the kernel writes (:func:`correct_c`), bit for bit.
+    """A float32 (H, W, 3) image's codes with the compiled library, on ``threads`` threads (None:
+    :func:`picamcal.kernels.kernel_threads`): those the kernel writes (:func:`correct_c`), bit for bit.
 
     Parameters
     ----------
@@ -558,6 +559,8 @@ def encode_c(
         (:func:`picamcal.kernels.encode_table`): one of them.
     block_rows : int
         Rows per work item handed to a thread.
+    threads : int, optional
+        1 for a caller that runs its own threads (each converting a strip of an image).
 
     Raises
     ------
@@ -577,14 +580,14 @@ def encode_c(
         raise library
     if code_scale is None and table is None:
         raise ValueError("encode_c makes codes: give code_scale or table")
-    if block_rows < 1:
-        raise ValueError(f"block_rows must be at least 1, not {block_rows}")
+    if block_rows < 1 or (threads is not None and threads < 1):
+        raise ValueError(f"block_rows and threads must be at least 1, not {block_rows} and {threads}")
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"an image to encode is (H, W, 3), not {rgb.shape}")
     height, width = rgb.shape[:2]
     output, keep = _output(out, height, width, code_scale, table)
-    job = _EncodeJob(_address(rgb), height, width, output, block_rows, kernel_threads())
+    job = _EncodeJob(_address(rgb), height, width, output, block_rows, threads or kernel_threads())
     library.picamcal_encode(ctypes.byref(job))
     return keep[0]
 

@@ -29,6 +29,7 @@ import numpy as np
 import tifffile
 
 from .._atomic import atomic_path
+from ..ckernel import c_available, encode_c
 from ..correct import UINT16_WHITE
 from .colour import check_rgb
 from .encoders import parallel_map, resolve_threads
@@ -82,7 +83,11 @@ def encode_uint16(rgb: np.ndarray, *, threads: int | None = None) -> np.ndarray:
 
 
 def _encode_rows(rgb: np.ndarray, out: np.ndarray) -> None:
-    """Rows of linear RGB to their codes in ``out``, a cache-sized block at a time."""
+    """Rows of linear RGB to their codes in ``out``: float32 rows by the compiled kernel on this thread
+    (:func:`picamcal.ckernel.encode_c`, the same codes), else a cache-sized block at a time in numpy."""
+    if rgb.dtype == np.float32 and c_available():
+        encode_c(rgb, out, code_scale=UINT16_WHITE, threads=1)
+        return
     work = rgb.dtype if rgb.dtype in (np.float32, np.float64) else np.dtype(np.float64)
     scale, zero, top = work.type(UINT16_WHITE), work.type(0), work.type(_CODE_MAX)
     block = max(1, _BLOCK_PIXELS // max(1, rgb.shape[1]))
