@@ -51,7 +51,8 @@ def needs_sphinx() -> None:
 
 def build(source: Path, out: Path) -> subprocess.CompletedProcess:
     command = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html", str(source), str(out)]
-    return subprocess.run(command, capture_output=True, text=True, timeout=1500)
+    # A guard against a hang, not a time limit: on 2 cores busy with other work the build took over 25 minutes.
+    return subprocess.run(command, capture_output=True, text=True, timeout=3600)
 
 
 def copy_repository(into: Path) -> Path:

@@ -126,6 +126,14 @@ def test_inspecting_a_dng_imports_no_plotting_or_kernels(tmp_path, simulated):
     assert heavy(modules, PLOTTING_AND_KERNELS) == []
 
 
+def test_measuring_the_wheels_imports_no_colour_science(tmp_path, simulated):
+    # L*a*b* and CIEDE2000 are computed in numpy (analysis.metrics): colour-science's import takes seconds.
+    _, refs, cal = simulated
+    modules = command_modules(["analyse", str(refs["target"]), "--calibration", str(cal), "--out", "a"], tmp_path)
+    assert (tmp_path / "a").is_dir() and "picamcal.analysis.metrics" in modules
+    assert heavy(modules, ("colour",)) == []
+
+
 def test_exporting_a_legacy_table_imports_no_plotting_or_kernels(tmp_path, simulated):
     _, _, cal = simulated
     modules = command_modules(["export-lst", str(cal), "--out", str(tmp_path / "table.npy")], tmp_path)

@@ -133,6 +133,27 @@ def test_delta_e2000_lab_matches_sharma_test_data(lab_a, lab_b, published):
     assert float(delta_e2000_lab(lab_a, lab_b)) == pytest.approx(published, abs=1e-4)
 
 
+def test_lab_and_delta_e2000_are_colour_sciences():
+    """The numpy conversions against the colour-science functions they stand for (colour-science is installed with
+    colour-demosaicing): L*a*b* within 1e-9, CIEDE2000 within 1e-9, neutral, black and identical pairs included."""
+    colour = pytest.importorskip("colour")
+    from colour.utilities import domain_range_scale
+
+    rng = np.random.default_rng(5)
+    rgb = rng.random((5000, 3)) * 1.3 - 0.05
+    rgb[:3] = [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.004, 0.004, 0.004]]  # black, white, a grey below (6/29)**3
+    space = colour.RGB_COLOURSPACES["sRGB"]
+    with domain_range_scale("reference"):
+        white = colour.XYZ_to_xy(space.matrix_RGB_to_XYZ @ np.ones(3))
+        expected = colour.XYZ_to_Lab(colour.RGB_to_XYZ(rgb, space), white)
+        lab_a, lab_b = linear_to_lab(rgb), linear_to_lab(rng.permutation(rgb))
+        lab_b[:500] = lab_a[:500]  # identical
+        lab_a[500:600, 1:] = lab_b[550:650, 1:] = 0  # neutral on one side, both sides
+        difference = colour.delta_E(lab_a, lab_b, method="CIE 2000")
+    np.testing.assert_allclose(linear_to_lab(rgb), expected, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(delta_e2000_lab(lab_a, lab_b), difference, rtol=0, atol=1e-9)
+
+
 def test_delta_e2000_identical_colours_is_zero_and_broadcasts():
     colours = np.array([[0.2, 0.4, 0.6], [1.0, 0.0, 0.0], [0.01, 0.02, 0.005]])
     np.testing.assert_array_equal(delta_e2000(colours, colours), np.zeros(3))

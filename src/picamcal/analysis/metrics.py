@@ -14,7 +14,6 @@ perceptual scale, which is all a comparison between them needs.
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 from collections.abc import Mapping
@@ -28,6 +27,7 @@ from .._atomic import atomic_path
 from ..bayer import block_mean
 from ..colour_wheel import CENTRE_WHEEL
 from ..errors import PicamcalError
+from ..output.colour import SRGB_TO_XYZ_D65
 
 __all__ = [
     "delta_e2000",
@@ -42,26 +42,25 @@ __all__ = [
 ]
 
 
-@functools.cache
-def _srgb() -> tuple[Any, np.ndarray]:
-    """colour-science's sRGB space and the white point of L*a*b*, made when first needed: importing colour-science
-    takes a second (it imports matplotlib and much of scipy), which a command that measures no colour should not pay.
+#: IEC 61966-2-1's linear sRGB to CIE XYZ (D65), and the L*a*b* white: the XYZ of RGB (1, 1, 1), whose chromaticity
+#: differs from the tabulated D65 by 2e-5; using it makes the calibration's white exactly neutral.
+_SRGB_TO_XYZ = SRGB_TO_XYZ_D65
+_WHITE_XYZ = SRGB_TO_XYZ_D65 @ np.ones(3)
 
-    The white point is the XYZ of RGB (1, 1, 1) through the sRGB matrix of IEC 61966-2-1, whose chromaticity
-    differs from the tabulated D65 by 2e-5; using it makes the calibration's white exactly neutral.
-    """
-    import colour
 
-    space = colour.RGB_COLOURSPACES["sRGB"]
-    return space, colour.XYZ_to_xy(space.matrix_RGB_to_XYZ @ np.ones(3))
+def _lab_f(t: np.ndarray) -> np.ndarray:
+    """CIE 1976's function of a tristimulus ratio (CIE 015:2018, 8.2.1): the cube root above (6/29)**3, else the
+    line ``t * 841 / 108 + 4 / 29`` that meets it."""
+    return np.where(t > (6 / 29) ** 3, np.cbrt(t), t * (841 / 108) + 4 / 29)
 
 
 def linear_to_lab(rgb: ArrayLike) -> np.ndarray:
     """Convert linear RGB (white at (1, 1, 1)) to CIE L*a*b*, treating it as linear sRGB under D65.
 
-    The RGB is taken through the IEC 61966-2-1 sRGB matrix to CIE XYZ and then to CIE 1976 L*a*b* relative
-    to the XYZ of RGB (1, 1, 1), so white has L* = 100 and a* = b* = 0.  Values outside [0, 1] are not
-    clipped.
+    The RGB is taken through the IEC 61966-2-1 sRGB matrix to CIE XYZ and then to CIE 1976 L*a*b* (CIE 015:2018,
+    8.2.1) relative to the XYZ of RGB (1, 1, 1), so white has L* = 100 and a* = b* = 0.  Values outside [0, 1] are
+    not clipped. The same numbers as colour-science's ``XYZ_to_Lab(RGB_to_XYZ(rgb, "sRGB"), white)``, in numpy (a
+    command that measures colours does not pay colour-science's import, seconds).
 
     Parameters
     ----------
@@ -80,18 +79,14 @@ def linear_to_lab(rgb: ArrayLike) -> np.ndarray:
     >>> round(float(linear_to_lab([0.18, 0.18, 0.18])[0]), 2)
     49.5
     """
-    import colour
-    from colour.utilities import domain_range_scale
-
     rgb = _as_colours(rgb, "rgb")
-    space, white_xy = _srgb()
-    with domain_range_scale("reference"):
-        xyz = colour.RGB_to_XYZ(rgb, space)
-        return np.asarray(colour.XYZ_to_Lab(xyz, white_xy), dtype=np.float64)
+    f = _lab_f((rgb @ _SRGB_TO_XYZ.T) / _WHITE_XYZ)
+    fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
+    return np.stack([116 * fy - 16, 500 * (fx - fy), 200 * (fy - fz)], axis=-1)
 
 
 def delta_e2000_lab(lab_a: ArrayLike, lab_b: ArrayLike) -> np.ndarray:
-    """CIEDE2000 colour difference between CIE L*a*b* colours (Sharma, Wu and Dalal 2005).
+    """CIEDE2000 colour difference between CIE L*a*b* colours (Sharma, Wu and Dalal 2005, equations 2 to 22).
 
     Parameters
     ----------
@@ -110,13 +105,36 @@ def delta_e2000_lab(lab_a: ArrayLike, lab_b: ArrayLike) -> np.ndarray:
     >>> round(float(delta_e2000_lab([50.0, 2.6772, -79.7751], [50.0, 0.0, -82.7485])), 4)
     2.0425
     """
-    import colour
-    from colour.utilities import domain_range_scale
-
-    lab_a = _as_colours(lab_a, "lab_a")
-    lab_b = _as_colours(lab_b, "lab_b")
-    with domain_range_scale("reference"):
-        return np.asarray(colour.delta_E(lab_a, lab_b, method="CIE 2000"), dtype=np.float64)
+    lab_a, lab_b = np.broadcast_arrays(_as_colours(lab_a, "lab_a"), _as_colours(lab_b, "lab_b"))
+    (l1, a1, b1), (l2, a2, b2) = np.moveaxis(lab_a, -1, 0), np.moveaxis(lab_b, -1, 0)
+    c_mean7 = ((np.hypot(a1, b1) + np.hypot(a2, b2)) / 2) ** 7
+    g = 0.5 * (1 - np.sqrt(c_mean7 / (c_mean7 + 25.0**7)))  # (4)
+    a1, a2 = (1 + g) * a1, (1 + g) * a2  # (5)
+    c1, c2 = np.hypot(a1, b1), np.hypot(a2, b2)  # (6)
+    h1, h2 = np.degrees(np.arctan2(b1, a1)) % 360, np.degrees(np.arctan2(b2, a2)) % 360  # (7): 0 where a = b = 0
+    chromatic = c1 * c2 != 0
+    dh = h2 - h1  # (10)
+    dh = np.where(dh > 180, dh - 360, np.where(dh < -180, dh + 360, dh)) * chromatic
+    dl, dc = l2 - l1, c2 - c1  # (8), (9)
+    dhh = 2 * np.sqrt(c1 * c2) * np.sin(np.radians(dh) / 2)  # (11)
+    l_mean, c_mean = (l1 + l2) / 2, (c1 + c2) / 2  # (12), (13)
+    h_sum = h1 + h2  # (14)
+    h_mean = np.where(np.abs(h1 - h2) <= 180, h_sum / 2, np.where(h_sum < 360, h_sum + 360, h_sum - 360) / 2)
+    h_mean = np.where(chromatic, h_mean, h_sum)
+    t = (  # (15)
+        1
+        - 0.17 * np.cos(np.radians(h_mean - 30))
+        + 0.24 * np.cos(np.radians(2 * h_mean))
+        + 0.32 * np.cos(np.radians(3 * h_mean + 6))
+        - 0.20 * np.cos(np.radians(4 * h_mean - 63))
+    )
+    d_theta = 30 * np.exp(-(((h_mean - 275) / 25) ** 2))  # (16)
+    r_c = 2 * np.sqrt(c_mean**7 / (c_mean**7 + 25.0**7))  # (17)
+    s_l = 1 + 0.015 * (l_mean - 50) ** 2 / np.sqrt(20 + (l_mean - 50) ** 2)  # (18)
+    s_c, s_h = 1 + 0.045 * c_mean, 1 + 0.015 * c_mean * t  # (19), (20)
+    r_t = -np.sin(np.radians(2 * d_theta)) * r_c  # (21)
+    terms = (dl / s_l) ** 2 + (dc / s_c) ** 2 + (dhh / s_h) ** 2 + r_t * (dc / s_c) * (dhh / s_h)
+    return np.sqrt(terms)  # (22)
 
 
 def delta_e2000(rgb_a: ArrayLike, rgb_b: ArrayLike) -> np.ndarray:
