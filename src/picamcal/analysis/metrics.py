@@ -42,9 +42,8 @@ __all__ = [
 ]
 
 
-#: IEC 61966-2-1's linear sRGB to CIE XYZ (D65), and the L*a*b* white: the XYZ of RGB (1, 1, 1), whose chromaticity
-#: differs from the tabulated D65 by 2e-5; using it makes the calibration's white exactly neutral.
-_SRGB_TO_XYZ = SRGB_TO_XYZ_D65
+#: The L*a*b* white: the XYZ of RGB (1, 1, 1) through IEC 61966-2-1's matrix, whose chromaticity differs from the
+#: tabulated D65 by 2e-5; using it makes the calibration's white exactly neutral.
 _WHITE_XYZ = SRGB_TO_XYZ_D65 @ np.ones(3)
 
 
@@ -80,7 +79,7 @@ def linear_to_lab(rgb: ArrayLike) -> np.ndarray:
     49.5
     """
     rgb = _as_colours(rgb, "rgb")
-    f = _lab_f((rgb @ _SRGB_TO_XYZ.T) / _WHITE_XYZ)
+    f = _lab_f((rgb @ SRGB_TO_XYZ_D65.T) / _WHITE_XYZ)
     fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
     return np.stack([116 * fy - 16, 500 * (fx - fy), 200 * (fy - fz)], axis=-1)
 
