@@ -379,6 +379,11 @@ class Picamera2Camera:
 
     #: Frames to wait for new controls to reach the sensor before giving up.
     MAX_SETTLE_FRAMES = 12
+    #: Frames without the requested settings after which the controls are sent again: picamera2 attaches them to
+    #: the next request it recycles, and a ``set_controls`` that lands while another thread recycles a request is
+    #: lost (``CompletedRequest.release`` reads the pending controls, then replaces them with an empty set). Sending
+    #: the same values again is harmless; 4 frames is the sensor's delay of 2 and a request in flight, and more.
+    RESEND_FRAMES = 4
 
     def __init__(
         self, camera_num: int = 0, *, tuning: dict[str, Any] | None = None, sensor_mode: str | None = None
@@ -422,6 +427,7 @@ class Picamera2Camera:
             )
         self._raw_format: str | None = None
         self._processed: dict[str, Any] | None = None
+        self._controls: dict[str, Any] = {}
         self._requested: tuple[int, float] = (10_000, 1.0)
         self._requested_gains: tuple[float, float] | None = None
         self._scaler_crop: list[int] | None = None
@@ -517,13 +523,28 @@ class Picamera2Camera:
             if auto_white_balance:
                 raise CameraError("colour gains are the auto white balance's to choose: give one or the other")
             controls["ColourGains"] = (float(colour_gains[0]), float(colour_gains[1]))
+        self._send(controls)
+        self._controls = controls
+        self._requested = (controls["ExposureTime"], controls["AnalogueGain"])
+        self._requested_gains = controls.get("ColourGains")
+        self._pending = True
+
+    def _send(self, controls: dict[str, Any]) -> None:
         try:
             self._picam2.set_controls(controls)
         except (RuntimeError, ValueError) as exc:
             raise CameraError(f"the camera refused the controls {controls} ({exc})") from exc
-        self._requested = (controls["ExposureTime"], controls["AnalogueGain"])
-        self._requested_gains = controls.get("ColourGains")
-        self._pending = True
+
+    def _settling(self, frames: int, exposure_s: Any, gain: Any) -> None:
+        """After ``frames`` frames without the requested settings (the last one at ``exposure_s`` and ``gain``):
+        give up at :attr:`MAX_SETTLE_FRAMES`, and send the controls again every :attr:`RESEND_FRAMES`."""
+        if frames >= self.MAX_SETTLE_FRAMES:
+            raise CameraError(
+                f"the camera did not apply exposure {self._requested[0]} µs at gain {self._requested[1]} within "
+                f"{frames} frames (it reports {exposure_s} s, gain {gain})"
+            )
+        if frames % self.RESEND_FRAMES == 0:
+            self._send(self._controls)
 
     def _applied(self, exposure_time_s: Any, analogue_gain: Any, colour_gains: Any = None) -> bool:
         """True when a frame carries the requested exposure and gain (within the sensor's quantisation), and the
@@ -558,12 +579,7 @@ class Picamera2Camera:
             while self._pending and not self._applied(
                 raw.metadata.get("exposure_time_s"), raw.metadata.get("analogue_gain")
             ):
-                if frames >= self.MAX_SETTLE_FRAMES:
-                    raise CameraError(
-                        f"the camera did not apply exposure {self._requested[0]} µs at gain {self._requested[1]} "
-                        f"within {frames} frames (it reports {raw.metadata.get('exposure_time_s')} s, gain "
-                        f"{raw.metadata.get('analogue_gain')})"
-                    )
+                self._settling(frames, raw.metadata.get("exposure_time_s"), raw.metadata.get("analogue_gain"))
                 raw = capture_raw(camera)
                 frames += 1
         except RuntimeError as exc:
@@ -578,8 +594,8 @@ class Picamera2Camera:
         if self._processed is None:
             raise CameraError("the camera is not configured: call configure_processed() first")
         camera = _Flushed(self._picam2, timeout=self._timeout())
-        metadata: dict[str, Any] = {}
-        for _ in range(self.MAX_SETTLE_FRAMES):
+        frames = 0
+        while True:
             try:
                 request = camera.capture_request()
                 try:
@@ -594,11 +610,8 @@ class Picamera2Camera:
             ):
                 self._pending = False
                 return rgb, metadata
-        raise CameraError(
-            f"the camera did not apply exposure {self._requested[0]} µs at gain {self._requested[1]} within "
-            f"{self.MAX_SETTLE_FRAMES} frames (it reports {metadata.get('ExposureTime')} µs, gain "
-            f"{metadata.get('AnalogueGain')})"
-        )
+            frames += 1
+            self._settling(frames, exposure_s, metadata.get("AnalogueGain"))
 
     def limits(self) -> CameraLimits:
         """Exposure and gain ranges from picamera2's ``camera_controls`` (those of the configured mode)."""
