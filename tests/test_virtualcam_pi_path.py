@@ -417,6 +417,39 @@ def test_controls_picamera2_drops_are_sent_again(tmp_path, platform):
     assert out["never"] == ["the camera did not apply exposure 9000 µs at gain 1.0 within 12 frames", 3]
 
 
+SLOW = """
+import json, time
+from picamcal.acquire.cameras import Picamera2Camera
+from picamcal.acquire.pi_camera import _Flushed
+camera = Picamera2Camera()
+camera.configure_raw()
+camera._picam2.set_controls({"FrameDurationLimits": (500000, 500000)})
+camera.set_controls(490000, 1.0)
+camera.capture()
+waits = []
+for _ in range(3):
+    time.sleep(0.15)  # into a frame: the next frame's exposure began before the call
+    call = time.monotonic_ns()
+    request = _Flushed(camera._picam2, timeout=0.7).capture_request()
+    metadata = request.get_metadata()
+    request.release()
+    begun = metadata["SensorTimestamp"] - 1000 * metadata["ExposureTime"]
+    waits.append([(time.monotonic_ns() - call) / 1e9, begun >= call])
+camera.close()
+print(json.dumps(waits))
+"""
+
+
+def test_a_camera_slow_to_send_a_fresh_frame_is_waited_for_while_frames_come(tmp_path):
+    # Frames of 0.5 s exposed for 0.49 s, called for 0.15 s into a frame: the first frame begun after the call comes
+    # about 0.85 s later, past the 0.7 s timeout, while a frame comes every 0.5 s. The camera answers, so the wait
+    # goes on; a camera that sends nothing for the timeout has stopped answering (the stalled test above). A
+    # full-size virtual camera on a busy machine was given up so.
+    waits = last_json(run_script(tmp_path, SLOW, "--sensor=imx219", f"--size={SIZE}"))
+    assert all(fresh for _, fresh in waits)
+    assert min(wait for wait, _ in waits) > 0.7
+
+
 def test_no_camera_is_one_line(tmp_path):
     # libcamera registers no camera whose tuning file is for the other platform (a LIBCAMERA_RPI_TUNING_FILE left in
     # the environment): none is found.

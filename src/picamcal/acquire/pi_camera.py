@@ -71,7 +71,9 @@ def import_picamera2() -> Any:
 
 
 class _Flushed:
-    """A Picamera2 whose ``capture_request`` waits, at most ``timeout`` s, for a frame begun after the call."""
+    """A Picamera2 whose ``capture_request`` waits for a frame begun after the call as long as the camera answers: it
+    gives up only when no frame at all (``Picamera2.frames``, the frames picamera2 has received) came for ``timeout``
+    s. A camera slow to deliver a fresh frame, as a virtual one on a busy machine, has its frames in flight finish."""
 
     def __init__(self, picam2: Any, timeout: float) -> None:
         self._picam2 = picam2
@@ -88,11 +90,17 @@ class _Flushed:
 
     def capture_request(self) -> Any:
         job = self._picam2.capture_request(flush=True, wait=False)
-        try:
-            return self._picam2.wait(job, timeout=self._timeout)
-        # picamera2's job is a concurrent.futures.Future: its timeout is not the built-in TimeoutError before 3.11.
-        except (TimeoutError, concurrent.futures.TimeoutError):
-            raise CameraError(f"the camera sent no frame within {self._timeout:.0f} s: it stopped answering") from None
+        frames = self._picam2.frames
+        while True:
+            try:
+                return self._picam2.wait(job, timeout=self._timeout)
+            # picamera2's job is a concurrent.futures.Future: its timeout is not the built-in TimeoutError before 3.11.
+            except (TimeoutError, concurrent.futures.TimeoutError):
+                if self._picam2.frames == frames:
+                    raise CameraError(
+                        f"the camera sent no frame within {self._timeout:.2g} s: it stopped answering"
+                    ) from None
+                frames = self._picam2.frames
 
 
 #: Lists the cameras as ``Picamera2.global_camera_info()`` does, in a process of its own (:func:`list_cameras`).
