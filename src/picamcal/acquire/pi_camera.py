@@ -435,9 +435,7 @@ class Picamera2Camera:
             )
         self._raw_format: str | None = None
         self._processed: dict[str, Any] | None = None
-        self._controls: dict[str, Any] = {}
-        self._requested: tuple[int, float] = (10_000, 1.0)
-        self._requested_gains: tuple[float, float] | None = None
+        self._controls: dict[str, Any] = {"ExposureTime": 10_000, "AnalogueGain": 1.0}  # the last requested
         self._scaler_crop: list[int] | None = None
         self._pending = False
 
@@ -533,8 +531,6 @@ class Picamera2Camera:
             controls["ColourGains"] = (float(colour_gains[0]), float(colour_gains[1]))
         self._send(controls)
         self._controls = controls
-        self._requested = (controls["ExposureTime"], controls["AnalogueGain"])
-        self._requested_gains = controls.get("ColourGains")
         self._pending = True
 
     def _send(self, controls: dict[str, Any]) -> None:
@@ -548,8 +544,8 @@ class Picamera2Camera:
         give up at :attr:`MAX_SETTLE_FRAMES`, and send the controls again every :attr:`RESEND_FRAMES`."""
         if frames >= self.MAX_SETTLE_FRAMES:
             raise CameraError(
-                f"the camera did not apply exposure {self._requested[0]} µs at gain {self._requested[1]} within "
-                f"{frames} frames (it reports {exposure_s} s, gain {gain})"
+                f"the camera did not apply exposure {self._controls['ExposureTime']} µs at gain "
+                f"{self._controls['AnalogueGain']} within {frames} frames (it reports {exposure_s} s, gain {gain})"
             )
         if frames % self.RESEND_FRAMES == 0:
             self._send(self._controls)
@@ -557,7 +553,8 @@ class Picamera2Camera:
     def _applied(self, exposure_time_s: Any, analogue_gain: Any, colour_gains: Any = None) -> bool:
         """True when a frame carries the requested exposure and gain (within the sensor's quantisation), and the
         requested colour gains when ``colour_gains`` (a frame's ``ColourGains``) is given."""
-        exposure_us, gain = self._requested
+        exposure_us, gain = self._controls["ExposureTime"], self._controls["AnalogueGain"]
+        requested_gains = self._controls.get("ColourGains")
         actual_us = 1e6 * float(exposure_time_s or 0.0)
         actual_gain = float(analogue_gain or 0.0)
         # Exposure is whole sensor lines (tens of µs) and gain a register code: a few % at high gain, and steps of
@@ -565,16 +562,16 @@ class Picamera2Camera:
         applied = abs(actual_us - exposure_us) <= max(100.0, 0.02 * exposure_us) and math.isclose(
             actual_gain, gain, rel_tol=0.05, abs_tol=GAIN_STEP
         )
-        if applied and colour_gains is not None and self._requested_gains is not None:
+        if applied and colour_gains is not None and requested_gains is not None:
             # The metadata's gains pass through a C++ float (libcamera's control values).
             red, blue = (float(g) for g in colour_gains)
-            applied = math.isclose(red, self._requested_gains[0], rel_tol=1e-3) and math.isclose(
-                blue, self._requested_gains[1], rel_tol=1e-3
+            applied = math.isclose(red, requested_gains[0], rel_tol=1e-3) and math.isclose(
+                blue, requested_gains[1], rel_tol=1e-3
             )
         return applied
 
     def _timeout(self) -> float:
-        return 5.0 + 3e-6 * self._requested[0]
+        return 5.0 + 3e-6 * self._controls["ExposureTime"]
 
     def capture(self) -> RawImage:
         """One raw frame exposed after the call, at the requested settings."""
