@@ -72,8 +72,9 @@ def _resampled(cal: Calibration, target: SensorMode, pattern: str) -> Calibratio
     wx = _weights(target.width, cal.width, cal.bin_size, ax, bx)
 
     def field(array: np.ndarray) -> np.ndarray:
-        out = np.einsum("ty,yx...->tx...", wy, array.astype(np.float64))
-        out = np.einsum("sx,tx...->ts...", wx, out)
+        # wy along the rows, then wx along the columns, as matrix products (BLAS), whatever the trailing axes.
+        out = np.tensordot(wy, array.astype(np.float64), axes=(1, 0))
+        out = np.moveaxis(np.tensordot(wx, out, axes=(1, 1)), 0, 1)
         return out.astype(array.dtype) if array.dtype != bool else out > 0
 
     def optional(array: np.ndarray | None) -> np.ndarray | None:

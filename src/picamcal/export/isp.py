@@ -294,6 +294,31 @@ def lens_shading_gains(
     return np.stack([gy @ c @ gx.T for c in corners], axis=-1).astype(np.float32)
 
 
+def lens_shading_factors(
+    tuning: dict[str, Any], mode: SensorMode, *, ct: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`lens_shading_gains` in separable form ``(Gy, corners, Gx)``: channel ``c``'s gain at pixel ``(y, x)``
+    of the mode's image is ``(Gy @ corners[c] @ Gx.T)[y, x]``.
+
+    ``corners`` (3, rows, cols) are the corner-sampled grids the hardware receives for the mode, in its fixed point;
+    ``Gy`` (height, rows) and ``Gx`` (width, cols) its bilinear interpolation to the pixels. Sums and averages of the
+    gains over areas then cost a few small matrix products, never the whole (height, width, 3) image.
+
+    Examples
+    --------
+    >>> from picamcal.export.tuning import load_tuning, stock_tuning_path
+    >>> tuning = load_tuning(stock_tuning_path("imx219", "pisp"))
+    >>> gy, corners, gx = lens_shading_factors(tuning, SensorMode.full(320, 240))
+    >>> gy.shape, corners.shape, gx.shape
+    ((240, 33), (3, 33, 33), (320, 33))
+    >>> bool(np.allclose(gy @ corners[1] @ gx.T, lens_shading_gains(tuning, 320, 240)[..., 1]))
+    True
+    """
+    target, corners = _hardware_tables(tuning, mode, ct)
+    _, _, gy, gx = _grid_matrices(target, mode.width, mode.height)
+    return gy, corners, gx
+
+
 def lens_shading_gains_at(
     tuning: dict[str, Any], mode: SensorMode, rows: np.ndarray, cols: np.ndarray, *, ct: float | None = None
 ) -> np.ndarray:

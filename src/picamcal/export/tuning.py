@@ -604,12 +604,13 @@ def export_tuning(
     # A table keeps each channel's shape only, not the camera's colour balance: no gains can be said to make its
     # white neutral, and the camera's own white balance (or its frozen gains) is what applies.
     imported = IMPORTED_KEY in calibration.provenance
-    gains = {
-        "colour_gains": list(neutral_colour_gains(calibration, tuning)),
-        "colour_gains_by_mode": {name: list(neutral_colour_gains(calibration, tuning, modes[name])) for name in modes},
-    }
+    gains: dict[str, Any] = {}
+    if not imported:
+        gains["colour_gains"] = list(neutral_colour_gains(calibration, tuning))
+        by_mode = {name: neutral_colour_gains(calibration, tuning, mode) for name, mode in modes.items()}
+        gains["colour_gains_by_mode"] = {name: list(pair) for name, pair in by_mode.items()}
     tuning[RECORD_KEY] = {
-        **({} if imported else gains),
+        **gains,
         "colour_gains_use": IMPORTED_GAINS_USE if imported else COLOUR_GAINS_USE,
         "calibration": calibration.path.name if calibration.path else None,
         "sensor": calibration.sensor,

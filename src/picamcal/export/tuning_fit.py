@@ -20,7 +20,7 @@ from ..calibration.resample import CROP_TOLERANCE, resample_calibration
 from ..errors import PicamcalWarning
 from ..geometry import SensorMode, driver_geometry
 from ..sensors import LSC_GRIDS, SENSORS, sensor_modes
-from .isp import GAIN_LIMITS, TuningError, check_tuning, lens_shading_gains, mode_resampling, table_to_pixels
+from .isp import GAIN_LIMITS, TuningError, check_tuning, lens_shading_factors, mode_resampling, table_to_pixels
 
 __all__ = [
     "MEASURED_WEIGHT",
@@ -311,7 +311,7 @@ def neutral_colour_gains(
     geometry = calibration.geometry
     assert geometry is not None
     mode = mode or geometry
-    gains = lens_shading_gains(tuning, mode.width, mode.height, mode=mode)
+    gy, corners, gx = lens_shading_factors(tuning, mode)
     area = _overlap(mode, geometry)
     if area is None:
         raise TuningError(f"the {mode.describe()} mode does not overlap the calibration's crop", calibration.path)
@@ -323,9 +323,9 @@ def neutral_colour_gains(
     if mode.vflip:
         y0, y1 = mode.height - y1, mode.height - y0
     size = inside.bin_size
-    window = gains[y0:y1, x0:x1]
-    fy, fx = _bin_average(y1 - y0, size), _bin_average(x1 - x0, size)
-    binned = np.stack([fy @ window[..., c] @ fx.T for c in range(3)], axis=-1)
+    # The gains averaged over each bin of the window, in the separable form (never the whole per-pixel image).
+    rows, cols = _bin_average(y1 - y0, size) @ gy[y0:y1], _bin_average(x1 - x0, size) @ gx[x0:x1]
+    binned = np.stack([rows @ corner @ cols.T for corner in corners], axis=-1)
     red, green, blue = (binned * inside.white).reshape(-1, 3).mean(axis=0)
     return round(float(green / red), 4), round(float(green / blue), 4)
 
