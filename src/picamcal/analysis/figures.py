@@ -54,6 +54,11 @@ _DPI = 120
 _LINE_COLOURS = ("tab:red", "tab:green", "tab:blue")
 _PANEL_WIDTH = 3.6  # inches per map
 _PENALTY_LEVELS = (1.5, 2, 3, 4, 6, 8, 12, 16)
+#: The fixed layout of :func:`_figure`, inches: room for the y ticks and label (left), the x ticks and label
+#: (bottom), the suptitle, a line of panel title, the gap between panels, and a colour bar with its gap, ticks and
+#: label.
+_MARGINS = {"left": 0.8, "bottom": 0.55, "suptitle": 0.45, "title": 0.3, "gap": 0.3, "bar_gap": 0.15, "bar": 0.14,
+            "bar_label": 0.85}  # fmt: skip
 
 
 def lens_shading_maps(calibration: Calibration, path: str | os.PathLike[str], *, overwrite: bool = True) -> Path:
@@ -76,7 +81,7 @@ def lens_shading_maps(calibration: Calibration, path: str | os.PathLike[str], *,
         mesh = _map(ax, calibration, gains[..., c], GAIN_CMAP, norm)
         ax.set_title(f"{CHANNELS[c]} gain (max {gains[..., c].max():.2f})")
         ax.label_outer()
-    fig.colorbar(mesh, ax=axes[0].tolist(), label="flat-field gain (x)", shrink=0.9)
+    _colour_bar(fig, axes, mesh, "flat-field gain (x)", shrink=0.9)
     fig.suptitle("Lens shading: flat-field gain per channel")
     return _save(fig, path, overwrite)
 
@@ -112,7 +117,7 @@ def unmixing_grid(
     diag_norm = Normalize(float(diagonal.min()), max(float(diagonal.max()), float(diagonal.min()) + 1e-6))
     reach = max(float(np.abs(off).max()), 1e-6)
     off_norm = TwoSlopeNorm(0.0, -reach, reach)
-    fig, axes = _figure(calibration, 3, 3)
+    fig, axes = _figure(calibration, 3, 3, bottom_bar=True)
     meshes = {}
     for p in range(3):
         for q in range(3):
@@ -122,9 +127,8 @@ def unmixing_grid(
             meshes[diagonal_element] = _map(ax, calibration, matrices[..., p, q], cmap, norm)
             ax.set_title(f"{CHANNELS[p]} out from {CHANNELS[q]} in", fontsize="medium")
             ax.label_outer()
-    everything = axes.ravel().tolist()
-    fig.colorbar(meshes[True], ax=everything, label="diagonal element (gain)", shrink=0.8, location="right")
-    fig.colorbar(meshes[False], ax=everything, label="off-diagonal element", shrink=0.5, location="bottom")
+    _colour_bar(fig, axes, meshes[True], "diagonal element (gain)", shrink=0.8)
+    _colour_bar(fig, axes, meshes[False], "off-diagonal element", shrink=0.5, bottom=True)
     what = "to the sensor centre's colours" if mode is Mode.CENTRE else "to pure primaries"
     fig.suptitle(f"Unmixing field ({mode.value} mode: unmixing {what})")
     return _save(fig, path, overwrite)
@@ -174,7 +178,7 @@ def noise_penalty_maps(
             ax.clabel(lines, fmt="%gx", fontsize="x-small")
         ax.set_title(f"{titles[mode]}: max {values.max():.2f}x", fontsize="medium")
         ax.label_outer()
-    fig.colorbar(mesh, ax=axes[0].tolist(), label="noise factor (x)", shrink=0.9)
+    _colour_bar(fig, axes, mesh, "noise factor (x)", shrink=0.9)
     which = "worst channel" if channel is None else f"{channel} channel"
     fig.suptitle(f"Noise penalty relative to the sensor centre ({which})")
     return _save(fig, path, overwrite)
@@ -217,11 +221,24 @@ def normalised_references(
     row = int(np.argmin(np.abs(y - (calibration.height - 1) / 2.0)))
     top = max(1.05, float(np.percentile(normalised[:, row], 99.9)) * 1.05)
     names = ("white", *COLOURS)[: len(channels)]  # the order of site_responses
+    sep = "; " if len(names) > 1 else "\n"
+    # A fixed layout, inches (as _figure's): the images over their sections, each column with its own y ticks.
+    m, section, between = _MARGINS, 1.4, 0.55  # a section's height; the room for a column's y ticks
     width = max(len(names) * 3.0, 7.0)  # the white alone (a flat calibration) keeps room for its title
-    fig = Figure(figsize=(width, 3.0 * calibration.height / calibration.width + 2.6), layout="constrained")
-    axes = fig.subplots(
-        2, len(names), sharex=True, squeeze=False, height_ratios=(calibration.height / calibration.width * 1.6, 1)
-    )
+    panel = (width - m["left"] - m["gap"] - (len(names) - 1) * between) / len(names)
+    image = panel * calibration.height / calibration.width
+    head = m["suptitle"] + (0.25 if sep == "\n" else 0.0) + m["title"]  # a second line of suptitle for one column
+    height = m["bottom"] + section + m["gap"] + image + head  # the images share the sections' x tick labels
+    layout = {
+        "left": m["left"] / width,
+        "right": 1 - m["gap"] / width,
+        "bottom": m["bottom"] / height,
+        "top": 1 - head / height,
+        "wspace": between / panel,
+        "hspace": m["gap"] / ((image + section) / 2),
+    }
+    fig = Figure(figsize=(width, height))
+    axes = fig.subplots(2, len(names), sharex=True, squeeze=False, height_ratios=(image, section), gridspec_kw=layout)
     xe, ye = _edges(calibration)
     for k, name in enumerate(names):
         ax = axes[0, k]
@@ -243,7 +260,6 @@ def normalised_references(
             section.set_ylabel("relative response")
             section.legend(loc="lower center", ncols=3, fontsize="small")
     basis = "the white's centre, per channel" if relative_to == "centre" else "the white, bin by bin"
-    sep = "; " if len(names) > 1 else "\n"
     fig.suptitle(f"References normalised to {basis}{sep}sections along y = {y[row]:.0f} px")
     return _save(fig, path, overwrite)
 
@@ -271,7 +287,12 @@ def vignetting_centre_plot(
     check = check_vignetting_centre(calibration, cra_corner_deg=cra_corner_deg)
     v = check.values
     green = calibration.white[..., 1] / calibration.white[..., 1].max()
-    fig, axes = _figure(calibration, 1, 1, panel_width=6.0)
+    title = (
+        f"Vignetting centre ({v['x_px']:.0f}, {v['y_px']:.0f}) px: {v['offset_percent']:.1f} % of the half-diagonal off"
+    )
+    if v["tilt_x_deg"] is not None:
+        title += f"\nimplied tilt {v['tilt_x_deg']:+.2f} deg (x), {v['tilt_y_deg']:+.2f} deg (y)"
+    fig, axes = _figure(calibration, 1, 1, panel_width=6.0, title_lines=title.count("\n") + 1, suptitle=False)
     ax = axes[0, 0]
     mesh = _map(ax, calibration, green, GAIN_CMAP, Normalize(float(green.min()), 1.0))
     y, x = calibration.bin_centres
@@ -279,12 +300,7 @@ def vignetting_centre_plot(
     ax.plot(v["sensor_centre_x_px"], v["sensor_centre_y_px"], "w+", ms=14, mew=2, label="sensor centre")
     ax.plot(v["x_px"], v["y_px"], "x", color="tab:red", ms=12, mew=2.5, label="vignetting centre")
     ax.legend(loc="upper right", fontsize="small", framealpha=0.8)
-    fig.colorbar(mesh, ax=ax, label="green white / its peak", shrink=0.9)
-    title = (
-        f"Vignetting centre ({v['x_px']:.0f}, {v['y_px']:.0f}) px: {v['offset_percent']:.1f} % of the half-diagonal off"
-    )
-    if v["tilt_x_deg"] is not None:
-        title += f"\nimplied tilt {v['tilt_x_deg']:+.2f} deg (x), {v['tilt_y_deg']:+.2f} deg (y)"
+    _colour_bar(fig, axes, mesh, "green white / its peak", shrink=0.9)
     ax.set_title(title, fontsize="medium")
     return _save(fig, path, overwrite)
 
@@ -309,7 +325,7 @@ def dust_map(calibration: Calibration, path: str | os.PathLike[str], *, overwrit
     noise = check.values["noise_percent"] or 0.0  # None when the frame is too small to look for dust
     # Ten noise sigmas (at least 1 %) either way: the noise shows faintly, specks stand out saturated.
     reach = max(10.0 * noise, 1.0)
-    fig, axes = _figure(calibration, 1, 1, panel_width=6.0)
+    fig, axes = _figure(calibration, 1, 1, panel_width=6.0, suptitle=False)
     ax = axes[0, 0]
     mesh = _map(ax, calibration, residual, DIVERGING_CMAP, TwoSlopeNorm(0.0, -reach, reach))
     for speck in check.values["specks"]:
@@ -322,7 +338,7 @@ def dust_map(calibration: Calibration, path: str | os.PathLike[str], *, overwrit
             va="bottom",
             fontsize="small",
         )
-    fig.colorbar(mesh, ax=ax, label="white / smooth white - 1 (%)", shrink=0.9, extend="both")
+    _colour_bar(fig, axes, mesh, "white / smooth white - 1 (%)", shrink=0.9, extend="both")
     count = check.values["count"]
     ax.set_title(f"Dust: {count} speck{'' if count == 1 else 's'} found (bin noise {noise:.2f} %)", fontsize="medium")
     return _save(fig, path, overwrite)
@@ -337,17 +353,63 @@ def _edges(calibration: Calibration) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _figure(
-    calibration: Calibration, rows: int, cols: int, *, panel_width: float = _PANEL_WIDTH
+    calibration: Calibration,
+    rows: int,
+    cols: int,
+    *,
+    panel_width: float = _PANEL_WIDTH,
+    title_lines: int = 1,
+    suptitle: bool = True,
+    bottom_bar: bool = False,
 ) -> tuple[Figure, np.ndarray]:
-    """A constrained-layout figure of map panels sized to the frame's aspect ratio; axes as a 2-D array.
+    """A figure of map panels sized to the frame's aspect ratio, with room for a colour bar on the right (and one
+    below with ``bottom_bar``: :func:`_colour_bar`), panel titles of ``title_lines`` lines and a suptitle unless
+    ``suptitle=False``; axes as a 2-D array.
 
-    The panels share their axes: call :meth:`~matplotlib.axes.Axes.label_outer` on them after drawing so
-    only the outer ones carry tick labels (fewer labels to lay out, a less cluttered grid).
+    The layout is fixed, in inches (:data:`_MARGINS`), not found by a layout engine: constrained layout draws each
+    figure twice, which took about 40 % of a report's time. The panels share their axes: call
+    :meth:`~matplotlib.axes.Axes.label_outer` on them after drawing so only the outer ones carry tick labels.
     """
-    aspect = calibration.height / calibration.width
-    fig = Figure(figsize=(cols * panel_width + 1.2, rows * panel_width * aspect + 0.9), layout="constrained")
-    axes = np.asarray(fig.subplots(rows, cols, squeeze=False, sharex=True, sharey=True))
+    m = _MARGINS
+    panel_height = panel_width * calibration.height / calibration.width
+    title = m["title"] * title_lines
+    bar = m["bar_gap"] + m["bar"] + m["bar_label"]
+    width = m["left"] + cols * panel_width + (cols - 1) * m["gap"] + bar
+    bottom = m["bottom"] + (bar if bottom_bar else 0.0)
+    top = m["suptitle"] if suptitle else m["gap"]
+    height = bottom + rows * (panel_height + title) + (rows - 1) * m["gap"] + top
+    fig = Figure(figsize=(width, height))
+    layout = {
+        "left": m["left"] / width,
+        "right": (width - bar) / width,
+        "bottom": bottom / height,
+        "top": (height - top - title) / height,
+        "wspace": m["gap"] / panel_width,
+        "hspace": (m["gap"] + title) / panel_height,
+    }
+    axes = np.asarray(fig.subplots(rows, cols, squeeze=False, sharex=True, sharey=True, gridspec_kw=layout))
     return fig, axes
+
+
+def _colour_bar(
+    fig: Figure, axes: np.ndarray, mesh: QuadMesh, label: str, *, shrink: float, bottom: bool = False, **options
+) -> None:
+    """A colour bar beside the panels of :func:`_figure` (below them with ``bottom``), ``shrink`` times their extent
+    and centred on it."""
+    boxes = [ax.get_position() for ax in np.ravel(axes)]
+    x0, x1 = min(b.x0 for b in boxes), max(b.x1 for b in boxes)
+    y0, y1 = min(b.y0 for b in boxes), max(b.y1 for b in boxes)
+    width, height = fig.get_size_inches()
+    gap, thickness = _MARGINS["bar_gap"], _MARGINS["bar"]
+    if bottom:
+        span = shrink * (x1 - x0)
+        lowest = (_MARGINS["bottom"] + _MARGINS["bar_gap"]) / height  # below the x ticks and label
+        box = (x0 + (x1 - x0 - span) / 2, y0 - lowest, span, thickness / height)
+    else:
+        span = shrink * (y1 - y0)
+        box = (x1 + gap / width, y0 + (y1 - y0 - span) / 2, thickness / width, span)
+    orientation = "horizontal" if bottom else "vertical"
+    fig.colorbar(mesh, cax=fig.add_axes(box), label=label, orientation=orientation, **options)
 
 
 def _map(ax: Axes, calibration: Calibration, values: np.ndarray, cmap: str, norm: Normalize) -> QuadMesh:

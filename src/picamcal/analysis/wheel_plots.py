@@ -73,9 +73,13 @@ def polar_plot(
         raise PicamcalError("the analysis has no wheels to plot")
     names = sorted(wheels, key=lambda n: (n != CENTRE_WHEEL, list(wheels).index(n)))
     marker_colours = [_display_colour(s.get("colour")) for s in segments]
-    figure = Figure(figsize=(6.4, 5.6), dpi=120, layout="constrained")
-    # The stubs type add_subplot as plain Axes whatever the projection.
-    axes = cast(PolarAxes, figure.add_subplot(projection="polar"))
+    # A fixed layout, inches: the wheel on the left under its title, its angle labels, then the legend in the 1.6
+    # inches on the right (no layout engine: constrained layout drew the figure twice, for the same places).
+    width, height, left, bottom, top, labels, legend = 6.4, 5.6, 0.45, 0.6, 0.65, 0.4, 1.6
+    figure = Figure(figsize=(width, height), dpi=120)
+    box = (left / width, bottom / height, (width - left - labels - legend) / width, (height - bottom - top) / height)
+    # The stubs type add_axes as plain Axes whatever the projection.
+    axes = cast(PolarAxes, figure.add_axes(box, projection="polar"))
     cycle = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive"]
     handles = []
     for index, name in enumerate(names):
@@ -95,7 +99,8 @@ def polar_plot(
     axes.tick_params(axis="y", labelsize=8, labelcolor="grey")
     axes.set_title(title if title is not None else str(analysis_for_one_mode.get("mode", "")), pad=14)
     axes.set_xlabel("angle: CIE hue $h_{ab}$ (degrees); radius: saturation $C^*_{ab} / L^*$", fontsize=9)
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
+    beside = (1 - legend / width, 0.5)
+    figure.legend(handles=handles, loc="center left", bbox_to_anchor=beside, fontsize=8, frameon=False)
     return _save_figure(figure, path)
 
 
@@ -137,9 +142,16 @@ def wheel_crops(rgb: ArrayLike, layout: Mapping[str, Any], path: str | os.PathLi
         raise PicamcalError("the layout has no wheels to cut out")
     columns = min(len(wheels), 5)
     rows = math.ceil(len(wheels) / columns)
-    figure = Figure(figsize=(2.2 * columns, 2.45 * rows), dpi=120, layout="constrained")
+    # A fixed grid of 2.2 x 2.45 inch cells, each a square crop under its title (no layout engine: constrained layout
+    # drew the figure twice, for the same places).
+    cell_width, cell_height, title, pad = 2.2, 2.45, 0.3, 0.08
+    figure = Figure(figsize=(cell_width * columns, cell_height * rows), dpi=120)
+    width, height = cell_width * columns, cell_height * rows
     for index, wheel in enumerate(wheels):
-        axes = figure.add_subplot(rows, columns, index + 1)
+        row, column = divmod(index, columns)
+        x, y = column * cell_width + pad, (rows - 1 - row) * cell_height + pad
+        box = (x / width, y / height, (cell_width - 2 * pad) / width, (cell_height - title - pad) / height)
+        axes = figure.add_axes(box)
         axes.imshow(encode_srgb(_crop(image, float(wheel["x"]), float(wheel["y"]), 1.2 * float(wheel["radius"]))))
         axes.set_title(f"({chr(ord('a') + index)}) {wheel['name']}", fontsize=9)
         axes.set_axis_off()
