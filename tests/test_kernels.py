@@ -26,7 +26,7 @@ from picamcal.ckernel import c_available, correct_c
 from picamcal.correct import CLIPPED_WARNING_FRACTION, correction_fields, demosaic
 from picamcal.errors import OutputError
 from picamcal.interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
-from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available
+from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, malvar_demosaic, numba_available
 from picamcal.modes import Mode
 from picamcal.raw import PATTERNS, RawImage
 from picamcal.simulate import make_camera, simulate_references, simulate_target
@@ -164,6 +164,17 @@ def test_kernel_demosaic_is_malvar_he_cutler_with_colour_demosaicings_borders(pa
         from picamcal.kernels import correct_numba
 
         np.testing.assert_array_equal(correct_numba(mosaic, fields), correct_numpy(mosaic, fields))
+
+
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_malvar_demosaic_is_colour_demosaicings_without_importing_it(pattern):
+    # apply_tuning and analyse demosaic with the kernels' arithmetic alone: the reference's result, exactly on
+    # integers, to float32 rounding on gains (rows in several blocks, borders included).
+    rng = np.random.default_rng(4)
+    integers = rng.integers(0, 1024, size=(22, 30)).astype(np.float32)
+    np.testing.assert_array_equal(malvar_demosaic(integers, pattern, block_rows=8), demosaic(integers, pattern))
+    floats = (rng.random((130, 96)) * 3).astype(np.float32)
+    np.testing.assert_allclose(malvar_demosaic(floats, pattern, block_rows=16), demosaic(floats, pattern), atol=2e-6)
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration import Calibration
-from ..correct import correct, correct_processed, demosaic
+from ..correct import correct, correct_processed
 from ..errors import RawFormatError
+from ..kernels import malvar_demosaic
 from ..modes import Mode
 from ..raw import read_raw
 from ..raw.processed import read_processed
@@ -52,5 +53,5 @@ def images_by_mode(
         return images
     if calibration is not None:
         return {str(mode): correct(raw, calibration, mode) for mode in calibration.modes}
-    rgb = demosaic(raw.black_subtracted(), raw.pattern)
+    rgb = malvar_demosaic(raw.black_subtracted(), raw.pattern)
     return {str(Mode.UNCORRECTED): rgb / max(float(np.percentile(rgb, 99)), 1e-6)}

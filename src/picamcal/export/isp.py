@@ -506,7 +506,7 @@ def apply_tuning(
     >>> rgb.shape, rgb.dtype
     ((240, 320, 3), dtype('float32'))
     """
-    from ..correct import demosaic
+    from ..kernels import malvar_demosaic
 
     if mode is None:
         mode = mode_for_image(sensor_size or full_sensor_size(raw), (raw.width, raw.height))
@@ -521,7 +521,7 @@ def apply_tuning(
         plane = mosaic[sy::2, sx::2]
         plane -= levels[site]
         plane *= gains[sy::2, sx::2, channel] * balance[channel] / (raw.white_level - levels[site])
-    rgb = demosaic(mosaic, raw.pattern)
+    rgb = malvar_demosaic(mosaic, raw.pattern)
     if ccm:
         matrix = tuning_ccm(tuning, default_ct(tuning) if ct is None else ct)
         if matrix is None:
