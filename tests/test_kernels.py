@@ -23,10 +23,10 @@ import pytest
 from picamcal import PicamcalWarning, calibrate, correct
 from picamcal.bayer import bin_centres
 from picamcal.ckernel import c_available, correct_c
-from picamcal.correct import CLIPPED_WARNING_FRACTION, correction_fields, demosaic
+from picamcal.correct import CLIPPED_WARNING_FRACTION, correction_fields, demosaic, malvar_demosaic
 from picamcal.errors import OutputError
 from picamcal.interpolate import interpolation_matrix, spline_coefficients, spline_knots, spline_taps, upsample
-from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, malvar_demosaic, numba_available
+from picamcal.kernels import CorrectionFields, correct_numpy, make_taps, numba_available
 from picamcal.modes import Mode
 from picamcal.raw import PATTERNS, RawImage
 from picamcal.simulate import make_camera, simulate_references, simulate_target

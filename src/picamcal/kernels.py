@@ -389,34 +389,6 @@ def _demosaic_block(buf: np.ndarray, y0: int, channels: np.ndarray, rgb: np.ndar
                 out[..., other] = (_F5 * v + _F4 * vertical1 - vertical2 - diagonal + _F05 * horizontal2) * _EIGHTH
 
 
-def malvar_demosaic(mosaic: np.ndarray, pattern: str, block_rows: int = NUMPY_BLOCK_ROWS) -> np.ndarray:
-    """Demosaic a float Bayer mosaic to (H, W, 3) float32 with Malvar-He-Cutler (2004), the kernels' own arithmetic.
-
-    The numpy path's demosaic alone (:func:`correct_numpy` without black, flat field or unmixing), with the same
-    borders as :func:`picamcal.correct.demosaic`, colour-demosaicing's: equal to it exactly on integer mosaics below
-    2**10, and to float32 rounding otherwise. For what demosaics a frame without correcting it (``apply_tuning``,
-    ``analyse``): colour-demosaicing, the reference, takes about 3 s to import.
-
-    Examples
-    --------
-    >>> rgb = malvar_demosaic(np.ones((8, 8), np.float32), "BGGR")
-    >>> rgb.shape, float(rgb.min()), float(rgb.max())
-    ((8, 8, 3), 1.0, 1.0)
-    """
-    height, width = mosaic.shape
-    channels = np.array(["RGB".index(colour) for colour in pattern])
-    out = np.empty((height, width, 3), dtype=np.float32)
-    for y0 in range(0, height, block_rows):
-        y1 = min(y0 + block_rows, height)
-        rows = mosaic[_reflect(np.arange(y0 - 2, y1 + 2), height)]
-        buf = np.empty((rows.shape[0], width + 4), dtype=np.float32)
-        buf[:, 2 : width + 2] = rows
-        buf[:, :2] = buf[:, 3:1:-1]  # mirrored columns, as _flat_rows pads them
-        buf[:, width + 2 :] = buf[:, width + 1 : width - 1 : -1]
-        _demosaic_block(buf, y0, channels, out[y0:y1])
-    return out
-
-
 def _unmix_block(rgb: np.ndarray, y0: int, fields: CorrectionFields, matrices: np.ndarray) -> None:
     """Apply the interpolated matrix field to rows y0 ... of the image, in place on ``rgb`` (rows, W, 3)."""
     c = matrices

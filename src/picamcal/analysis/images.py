@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration import Calibration
-from ..correct import correct, correct_processed
+from ..correct import correct, correct_processed, malvar_demosaic
 from ..errors import RawFormatError
-from ..kernels import malvar_demosaic
 from ..modes import Mode
 from ..raw import read_raw
 from ..raw.processed import read_processed

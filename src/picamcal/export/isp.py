@@ -506,7 +506,7 @@ def apply_tuning(
     >>> rgb.shape, rgb.dtype
     ((240, 320, 3), dtype('float32'))
     """
-    from ..kernels import malvar_demosaic
+    from ..correct import malvar_demosaic
 
     if mode is None:
         mode = mode_for_image(sensor_size or full_sensor_size(raw), (raw.width, raw.height))
