@@ -111,7 +111,7 @@ def malvar_demosaic(mosaic: np.ndarray, pattern: str, block_rows: int = NUMPY_BL
     ((8, 8, 3), 1.0, 1.0)
     """
     height, width = mosaic.shape
-    channels = np.array(["RGB".index(colour) for colour in pattern])
+    channels = site_channels(pattern)
     out = np.empty((height, width, 3), dtype=np.float32)
     for y0 in range(0, height, block_rows):
         y1 = min(y0 + block_rows, height)

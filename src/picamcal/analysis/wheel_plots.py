@@ -145,8 +145,8 @@ def wheel_crops(rgb: ArrayLike, layout: Mapping[str, Any], path: str | os.PathLi
     # A fixed grid of 2.2 x 2.45 inch cells, each a square crop under its title (no layout engine: constrained layout
     # drew the figure twice, for the same places).
     cell_width, cell_height, title, pad = 2.2, 2.45, 0.3, 0.08
-    figure = Figure(figsize=(cell_width * columns, cell_height * rows), dpi=120)
     width, height = cell_width * columns, cell_height * rows
+    figure = Figure(figsize=(width, height), dpi=120)
     for index, wheel in enumerate(wheels):
         row, column = divmod(index, columns)
         x, y = column * cell_width + pad, (rows - 1 - row) * cell_height + pad

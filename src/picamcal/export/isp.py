@@ -288,9 +288,7 @@ def lens_shading_gains(
     >>> gains.shape, bool(gains[120, 160, 1] < gains[0, 0, 1])  # more gain in the corners
     ((240, 320, 3), True)
     """
-    mode = mode or SensorMode.full(width, height)
-    target, corners = _hardware_tables(tuning, mode, ct)
-    _, _, gy, gx = _grid_matrices(target, width, height)
+    gy, corners, gx = lens_shading_factors(tuning, mode or SensorMode.full(width, height), ct=ct)
     return np.stack([gy @ c @ gx.T for c in corners], axis=-1).astype(np.float32)
 
 
