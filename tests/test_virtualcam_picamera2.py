@@ -247,6 +247,53 @@ def test_a_frame_slow_to_process_does_not_cost_the_next(tmp_path, platform):
     assert json.loads(result.stdout.strip().splitlines()[-1]) == [1] * 9
 
 
+COMPILED = """
+import json
+from picamera2 import Picamera2
+from picamcal.raw.picamera2 import pisp
+from picamcal.virtualcam import frames, isp
+
+kernels = {"render": isp._compiled_render(), "pack": isp._compiled_pack(), "compress": pisp._compiled_words(),
+           "readout": frames._compiled_readout()}
+compiled = lambda: {name: [str(signature) for signature in kernel.signatures] for name, kernel in kernels.items()}
+picam2 = Picamera2()
+seen = []
+for config in (picam2.create_preview_configuration(raw={}),  # XBGR8888, the raw stream packed or compressed
+               picam2.create_still_configuration({"size": (300, 200)}, raw={"format": "SRGGB12"})):  # BGR888, padded
+    picam2.configure(config)
+    picam2.start()
+    configured = compiled()
+    for _ in range(3):
+        picam2.capture_array("main"), picam2.capture_array("raw")
+    seen.append({"configured": configured, "captured": compiled(), "main": picam2.camera_configuration()["main"]})
+    picam2.stop()
+picam2.close()
+print(json.dumps(seen))
+"""
+
+
+@pytest.mark.parametrize("platform", ["pisp", "vc4"])
+def test_configuring_compiles_what_the_frames_need_and_only_that(tmp_path, platform):
+    # numba compiles a kernel anew for each type and layout of its arrays, one to three seconds each the first time
+    # after an install: configuring compiles what the streams' frames will use (no frame waits for numba), and no
+    # more (the render in the units of the configured formats only).
+    pytest.importorskip("numba")
+    result = run_script(tmp_path, COMPILED, "--platform", platform, "--size", "640x480")
+    assert result.returncode == 0, result.stderr
+    preview, still = json.loads(result.stdout)
+    assert preview["main"]["format"] == "XBGR8888" and still["main"]["format"] == "BGR888"
+    assert still["main"]["stride"] > 3 * 300  # rows with padding: another layout for numba
+    for run in (preview, still):
+        assert run["captured"] == run["configured"], run
+    assert {"uint32"} == {unit(s) for s in preview["configured"]["render"]}
+    assert {"uint32", "uint8"} == {unit(s) for s in still["configured"]["render"]}
+
+
+def unit(signature: str) -> str:
+    """The element type of a render signature's last argument, the rows it writes."""
+    return signature.rsplit("Array(", 1)[1].split(",")[0]
+
+
 def test_install_puts_the_virtual_camera_in_place_from_python(tmp_path):
     script = tmp_path / "installed.py"
     script.write_text(textwrap.dedent(INSTALLED))

@@ -55,7 +55,7 @@ from .controls import (
 )
 from .frames import Scene, VirtualSensor
 from .ipa import Ipa, IpaError, load_camera_tuning
-from .isp import Isp, Layout, OutputPlan, encode_raw, sample_indices, warm_up
+from .isp import Isp, Layout, OutputPlan, encode_raw, sample_indices
 from .modes import SensorSpec, scaled_spec, sensor_spec
 from .options import Options, VirtualCameraError
 from .request import Request, RequestStatus, fail, log
@@ -336,10 +336,9 @@ class CameraData:
         assert mode is not None and self.isp is not None
         frame = self.sensor.capture(mode, 1000.0, 1.0, 0, *self.sensor_flips, noise=False)  # the response as read out
         self.isp.lens_shading(self.ipa.ct)
-        formats = [str(cfg.pixel_format) for cfg in config]
-        warm_up(any(f.endswith("_CSI2P") for f in formats), any(f.endswith("_PISP_COMP1") for f in formats))
         # One frame through each configured stream into scratch buffers: every kernel compiled for the exact types
-        # and layouts the frames will use (numba compiles anew for each), not while the first frame is awaited.
+        # and layouts the frames will use (numba compiles anew for each), and for no others (one to three seconds
+        # each, the first time after an install), not while the first frame is awaited.
         raw = self.streams[0]._configuration if self.streams[0] in self.active_streams else None
         if raw is not None:
             layout = Layout(str(raw.pixel_format), raw.size.width, raw.size.height, raw.stride, raw.frame_size)

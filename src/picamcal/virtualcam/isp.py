@@ -566,31 +566,6 @@ def _pack_loop(frame: np.ndarray, bits: int, out: np.ndarray) -> None:  # pragma
             dest[i] = 0
 
 
-def warm_up(packed: bool, compressed: bool) -> None:
-    """Compile the kernels a configuration uses on tiny inputs of the same types, so that its first frame does not
-    wait for numba (a no-op without numba; numba's disk cache makes it quick after the first time)."""
-    render = _compiled_render()
-    if render is None:
-        return
-    frame = np.zeros((2, 16), dtype=np.uint16)
-    lsc = np.ones((4, 1, 8), dtype=np.float32)
-    index, sites = np.zeros(1, dtype=np.intp), np.arange(4, dtype=np.intp)
-    weights, matrix = np.ones(3, dtype=np.float32), np.eye(3, dtype=np.float32)
-    for dtype in (np.uint8, np.uint16, np.uint32):
-        render(
-            frame, np.float32(0.0), lsc, np.float32(1.0), sites, index, index, index, index, weights, matrix,
-            np.zeros(2, np.uint8), sites[:3], np.zeros((1, 6), dtype=dtype)[:, :3],
-        )  # fmt: skip
-    render(
-        frame, np.float32(0.0), lsc, np.float32(1.0), sites, index, index, index, index, weights, matrix,
-        np.zeros(2, np.uint8), sites[:3], np.zeros((1, 3), dtype=np.uint8),
-    )  # fmt: skip
-    if packed:
-        _compiled_pack()(frame, 10, np.zeros((2, 32), dtype=np.uint8))
-    if compressed:
-        pisp_compress(frame, shift=4, out=np.zeros((2, 32), dtype=np.uint8))
-
-
 @functools.cache
 def _compiled_render() -> Any:
     """:func:`_render_loop` compiled by numba (cached on disk), or None without numba."""
