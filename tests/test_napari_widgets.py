@@ -13,6 +13,8 @@ Every comparison is exact: the widgets call the library functions the command li
 from __future__ import annotations
 
 import json
+import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -255,14 +257,26 @@ def test_the_calibrate_widget_gives_the_calibration_and_verdicts_of_the_cli(
     assert {role: combo.value for role, combo in widget.roles.items()} == {
         role: str(folder / f"{role}.dng") for role in ("white", "red", "green", "blue", "black")
     }  # each layer takes the role it is named for
-    worker = widget.calibrate()
-    ticks: list[bool] = []
+    # The calibration waits until the viewer's event loop has run while it waits: it can go on only if it runs in a
+    # thread of its own (on the viewer's thread it would wait the whole minute, however fast the machine).
+    module = sys.modules["picamcal.calibrate"]
+    waiting, viewer_ran, went_on = threading.Event(), threading.Event(), []
+
+    def calibrate_once_the_viewer_ran(*args: Any, **kwargs: Any) -> Any:
+        waiting.set()
+        went_on.append(viewer_ran.wait(60))
+        return real_calibrate(*args, **kwargs)
+
+    real_calibrate = module.calibrate
     timer = QTimer()
-    timer.timeout.connect(lambda: ticks.append(worker.is_running))
-    timer.start(1)
-    finish(qtbot, widget)
-    timer.stop()
-    assert any(ticks)  # the viewer processed events while the calibration ran in its thread
+    timer.timeout.connect(lambda: waiting.is_set() and viewer_ran.set())
+    with monkeypatch.context() as patch:
+        patch.setattr(module, "calibrate", calibrate_once_the_viewer_ran)
+        timer.start(1)
+        widget.calibrate()
+        finish(qtbot, widget)
+        timer.stop()
+    assert went_on == [True]
     assert widget.progress.value == widget.progress.max == 7  # five frames read, the calibration, the checks
 
     status, _, _ = cli("calibrate", folder, "--out", tmp_path / "cli.npz")
