@@ -4,13 +4,14 @@ repository."""
 
 from __future__ import annotations
 
-import os
 import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from picamcal.ckernel import cache_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src" / "picamcal"
@@ -86,11 +87,11 @@ def test_ruff_is_clean():
 
 @pytest.mark.slow
 def test_mypy_is_clean():
-    # Configured in pyproject.toml [tool.mypy] (files, Python version). Its incremental cache is kept in the user's
+    # Configured in pyproject.toml [tool.mypy] (files, Python version). Its incremental cache is kept in picamcal's
     # cache folder, not in the checkout, so that a fresh clone does not check numpy's, matplotlib's and every other
     # library's stubs again: a cold run took 71 to 95 s, a warm one about 18 s. mypy checks what changed
     # against the cache (sources, options, its own version), so what it reports does not depend on the cache.
-    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "picamcal-tests" / "mypy"
+    cache = cache_dir() / "mypy"
     command = [sys.executable, "-m", "mypy", "--cache-dir", str(cache)]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr

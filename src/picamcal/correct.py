@@ -38,8 +38,6 @@ from .kernels import (
     NUMPY_BLOCK_ROWS,
     CorrectionFields,
     SrgbTable,
-    _demosaic_block,
-    _reflect,
     correct_numba,
     correct_numpy,
     encode_codes,
@@ -110,18 +108,12 @@ def malvar_demosaic(mosaic: np.ndarray, pattern: str, block_rows: int = NUMPY_BL
     >>> rgb.shape, float(rgb.min()), float(rgb.max())
     ((8, 8, 3), 1.0, 1.0)
     """
-    height, width = mosaic.shape
-    channels = site_channels(pattern)
-    out = np.empty((height, width, 3), dtype=np.float32)
-    for y0 in range(0, height, block_rows):
-        y1 = min(y0 + block_rows, height)
-        rows = mosaic[_reflect(np.arange(y0 - 2, y1 + 2), height)]
-        buf = np.empty((rows.shape[0], width + 4), dtype=np.float32)
-        buf[:, 2 : width + 2] = rows
-        buf[:, :2] = buf[:, 3:1:-1]  # mirrored columns, as the kernels pad their rows
-        buf[:, width + 2 :] = buf[:, width + 1 : width - 1 : -1]
-        _demosaic_block(buf, y0, channels, out[y0:y1])
-    return out
+    unused = make_taps(np.zeros(1), np.zeros((1, 4)))  # no flat field, no matrix: no taps are read
+    neutral = CorrectionFields(
+        black=np.zeros(4, np.float32), channels=site_channels(pattern), site_gains=np.ones(4, np.float32),
+        white=None, white_rows=unused, matrices=None, matrix_rows=unused, matrix_cols=unused,
+    )  # fmt: skip
+    return correct_numpy(mosaic, neutral, block_rows=block_rows)
 
 
 def apply_matrix_field(rgb: np.ndarray, matrices: np.ndarray, centres: tuple[np.ndarray, np.ndarray]) -> np.ndarray:

@@ -607,8 +607,9 @@ def export_tuning(
     gains: dict[str, Any] = {}
     if not imported:
         gains["colour_gains"] = list(neutral_colour_gains(calibration, tuning))
-        by_mode = {name: neutral_colour_gains(calibration, tuning, mode) for name, mode in modes.items()}
-        gains["colour_gains_by_mode"] = {name: list(pair) for name, pair in by_mode.items()}
+        gains["colour_gains_by_mode"] = {
+            name: list(neutral_colour_gains(calibration, tuning, mode)) for name, mode in modes.items()
+        }
     tuning[RECORD_KEY] = {
         **gains,
         "colour_gains_use": IMPORTED_GAINS_USE if imported else COLOUR_GAINS_USE,
