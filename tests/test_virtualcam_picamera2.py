@@ -93,10 +93,15 @@ json.dump(out, sys.stdout)
 def under_virtual_camera(
     command: list[str], *options: str, cwd: Path, env: dict[str, str] | None = None, timeout: float = 600
 ) -> subprocess.CompletedProcess:
-    """``picamcal virtual-camera OPTIONS -- COMMAND``; libcamera's INFO lines are left out."""
+    """``picamcal virtual-camera OPTIONS -- COMMAND``; libcamera's INFO lines are left out. A command that runs
+    past ``timeout`` fails the test with the end of its stderr (where picamera2 logs what stopped its frames)."""
     full = [sys.executable, "-m", "picamcal", "virtual-camera", *options, "--", *command]
     environ = dict(os.environ, LIBCAMERA_LOG_LEVELS="*:WARN", **(env or {}))
-    return subprocess.run(full, capture_output=True, text=True, timeout=timeout, cwd=cwd, env=environ)
+    try:
+        return subprocess.run(full, capture_output=True, text=True, timeout=timeout, cwd=cwd, env=environ)
+    except subprocess.TimeoutExpired as exc:
+        stderr = exc.stderr.decode(errors="replace") if isinstance(exc.stderr, bytes) else exc.stderr or ""
+        pytest.fail(f"{' '.join(command)} ran past {timeout} s; its stderr ended:\n{stderr[-6000:]}", pytrace=False)
 
 
 def run_script(
