@@ -7,18 +7,15 @@ camera gives picamera2 that interface over the PiDNG the ``virtual-camera`` extr
 :mod:`picamcal.virtualcam.raspios_pidng`). Earlier picamera2 DNGs (and picamera2 with PyPI's PiDNG on a Pi) have
 the Model "PiDNG / PiCamera2" and name no sensor.
 
-The tests that run picamera2 start a Python under ``picamcal virtual-camera`` (several seconds each: slow); a
-subprocess timeout of 60 s guards against a hang, it is not a measure of speed.
+The tests that run picamera2 start a Python under ``picamcal virtual-camera`` (several seconds each: slow).
 """
 
 from __future__ import annotations
 
 import importlib.util
 import json
-import os
 import subprocess
 import sys
-import textwrap
 import warnings
 from pathlib import Path
 
@@ -26,6 +23,7 @@ import numpy as np
 import pytest
 
 from picamcal import PicamcalWarning, load_calibration, read_raw
+from test_virtualcam_picamera2 import run_script
 
 needs_picamera2 = pytest.mark.skipif(
     importlib.util.find_spec("picamera2") is None or importlib.util.find_spec("pidng") is None,
@@ -92,17 +90,6 @@ picam2.close()
 """
 
 
-def under_virtual_camera(tmp_path: Path, code: str, *options: str) -> subprocess.CompletedProcess:
-    """Run ``code`` as a script under ``picamcal virtual-camera --size 640x480 OPTIONS`` in ``tmp_path``."""
-    script = tmp_path / "script.py"
-    script.write_text(textwrap.dedent(code))
-    command = [sys.executable, "-m", "picamcal", "virtual-camera", "--size", "640x480", *options, "--"]
-    environ = dict(os.environ, LIBCAMERA_LOG_LEVELS="*:WARN")
-    return subprocess.run(
-        [*command, sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path, env=environ
-    )
-
-
 def colour_matrix(ccm: list[float], gains: list[float]) -> np.ndarray:
     """The ColorMatrix1 a Pi's picamera2 writes for a frame of this colour matrix and these gains."""
     return np.linalg.inv(SRGB_TO_XYZ @ np.reshape(ccm, (3, 3)) @ np.diag([gains[0], 1.0, gains[1]])).ravel()
@@ -113,7 +100,7 @@ def colour_matrix(ccm: list[float], gains: list[float]) -> np.ndarray:
 @pytest.mark.parametrize("platform", ["pisp", "vc4"])
 def test_picamera2_writes_a_dng_as_a_pi_writes_it_and_picamcal_calibrates_it(tmp_path, platform):
     (tmp_path / "refs").mkdir()
-    result = under_virtual_camera(tmp_path, CAPTURE, "--platform", platform)
+    result = run_script(tmp_path, CAPTURE, "--size", "640x480", "--platform", platform)
     assert result.returncode == 0, result.stderr
     captured = json.loads((tmp_path / "capture.json").read_text())
     metadata = captured["metadata"]
@@ -151,7 +138,7 @@ def test_picamera2_writes_a_dng_as_a_pi_writes_it_and_picamcal_calibrates_it(tmp
 @pytest.mark.slow
 @pytest.mark.parametrize("platform", ["pisp", "vc4"])
 def test_a_capture_after_a_failing_capture_job_completes(tmp_path, platform):
-    result = under_virtual_camera(tmp_path, FAIL_THEN_CAPTURE, "--platform", platform)
+    result = run_script(tmp_path, FAIL_THEN_CAPTURE, "--size", "640x480", "--platform", platform)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert len(lines) == 4 and lines[0] == lines[2] == "failed: FileNotFoundError", result.stdout

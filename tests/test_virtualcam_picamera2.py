@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -94,14 +95,21 @@ def under_virtual_camera(
     command: list[str], *options: str, cwd: Path, env: dict[str, str] | None = None, timeout: float = 600
 ) -> subprocess.CompletedProcess:
     """``picamcal virtual-camera OPTIONS -- COMMAND``; libcamera's INFO lines are left out. A command that runs
-    past ``timeout`` fails the test with the end of its stderr (where picamera2 logs what stopped its frames)."""
+    past ``timeout`` is killed with the virtual camera (their own process group), and fails the test with the end of
+    its stderr (where picamera2 logs what stopped its frames)."""
     full = [sys.executable, "-m", "picamcal", "virtual-camera", *options, "--", *command]
     environ = dict(os.environ, LIBCAMERA_LOG_LEVELS="*:WARN", **(env or {}))
-    try:
-        return subprocess.run(full, capture_output=True, text=True, timeout=timeout, cwd=cwd, env=environ)
-    except subprocess.TimeoutExpired as exc:
-        stderr = exc.stderr.decode(errors="replace") if isinstance(exc.stderr, bytes) else exc.stderr or ""
-        pytest.fail(f"{' '.join(command)} ran past {timeout} s; its stderr ended:\n{stderr[-6000:]}", pytrace=False)
+    pipe = subprocess.PIPE
+    with subprocess.Popen(
+        full, stdout=pipe, stderr=pipe, text=True, cwd=cwd, env=environ, start_new_session=True
+    ) as process:
+        try:
+            stdout, stderr = process.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            stderr = process.communicate()[1]
+            pytest.fail(f"{' '.join(command)} ran past {timeout} s; its stderr ended:\n{stderr[-6000:]}", pytrace=False)
+    return subprocess.CompletedProcess(full, process.returncode, stdout, stderr)
 
 
 def run_script(
@@ -294,6 +302,52 @@ def test_configuring_compiles_what_the_frames_need_and_only_that(tmp_path, platf
         assert run["captured"] == run["configured"], run
     assert preview["units"] == ["uint32"]
     assert still["units"] == ["uint32", "uint8"]
+
+
+# The ISP's thread descheduled for 0.3 s between finishing a frame and signalling it (as on a busy machine) while the
+# script stops the camera, before it configures the next mode.
+STOPPING = """
+import threading, time
+from picamera2 import Picamera2
+from picamcal.virtualcam.camera import CameraManager
+
+original = CameraManager._complete
+stopping = threading.Event()
+
+def descheduled(self, request):
+    if stopping.is_set() and threading.current_thread().name.endswith("ISP"):
+        time.sleep(0.3)
+    original(self, request)
+
+CameraManager._complete = descheduled
+with Picamera2() as picam2:
+    for size in [(320, 240), (640, 480), (320, 240)]:
+        picam2.configure(picam2.create_still_configuration(main={"size": size}))
+        picam2.start()
+        for _ in range(2):
+            with picam2.captured_request() as request:
+                height, width = request.make_array("main").shape[:2]
+        stopping.set()
+        time.sleep(0.2)  # the next frame's completion under way as the camera stops
+        picam2.stop()
+        stopping.clear()
+        print(width, height, flush=True)
+"""
+
+
+@pytest.mark.parametrize("platform", ["pisp", "vc4"])
+def test_a_frame_completing_as_the_camera_stops_never_reaches_the_next_configuration(tmp_path, platform):
+    # Run G of issue 31's full suite under load: a frame signalled after stop() returned came back to picamera2 in
+    # the next configuration; its event loop failed on it ("Exception during process_requests()", KeyError
+    # 'display') and every request stayed held, so the script waited for ever. Now it is signalled before stop()
+    # returns (test_virtualcam.py shows it of the camera alone), and picamera2 flushes it with the stop.
+    script = tmp_path / "script.py"
+    script.write_text(textwrap.dedent(STOPPING))
+    command = [sys.executable, str(script)]
+    result = under_virtual_camera(command, "--platform", platform, "--size", "640x480", cwd=tmp_path, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "Exception" not in result.stderr, result.stderr
+    assert result.stdout.split() == ["320", "240", "640", "480", "320", "240"]
 
 
 def test_install_puts_the_virtual_camera_in_place_from_python(tmp_path):

@@ -458,13 +458,13 @@ class CameraData:
             self.queue_, self.in_flight, self.developing = [], [], []
             self.state = "configured"
             self.lock.notify_all()
-        manager = self.manager_ref()
-        for request in pending:
-            for buffer in request._buffers.values():
-                buffer.metadata._set(FrameMetadataStatus.Cancelled, 0, 0, [])
-            request._status, request._pending = RequestStatus.Cancelled, 0
-            if manager is not None:
-                manager._complete(request)
+            manager = self.manager_ref()
+            for request in pending:
+                for buffer in request._buffers.values():
+                    buffer.metadata._set(FrameMetadataStatus.Cancelled, 0, 0, [])
+                request._status, request._pending = RequestStatus.Cancelled, 0
+                if manager is not None:
+                    manager._complete(request)
 
     def join(self) -> None:
         """Wait for the frame threads of an earlier start to end (before the camera changes under them)."""
@@ -554,16 +554,29 @@ class CameraData:
     def _fail_request(self, request: Request, sequence: int, exc: Exception) -> None:
         """Complete a request whose frame could not be made, as a frame in error."""
         log("ERROR", "RPI", "virtualcam", f"frame {sequence} failed: {exc!r}")
+        self._complete(request, FrameMetadataStatus.Error, sequence, 0, {})
+
+    def _complete(
+        self, request: Request, status: FrameMetadataStatus, sequence: int, timestamp: int, metadata: dict[str, Any]
+    ) -> None:
+        """Complete a request of the frame threads, unless :meth:`stop` cancelled it meanwhile: its buffers' and its
+        own metadata set and its completion signalled at once, under the camera's lock. So no request completes
+        after ``stop()`` returns, as libcamera promises (``Camera::stop``) and picamera2 relies on: it flushes the
+        completed requests right after stopping, and one signalled later would come back to it as a frame of the
+        next configuration (its event loop then fails on it, and every request stays held)."""
         with self.lock:
             if request not in self.in_flight:
                 return
             self.in_flight.remove(request)
-        for buffer in request._buffers.values():
-            buffer.metadata._set(FrameMetadataStatus.Error, sequence, 0, [])
-        request._status, request._pending = RequestStatus.Complete, 0
-        manager = self.manager_ref()
-        if manager is not None:
-            manager._complete(request)
+            for stream, buffer in request._buffers.items():
+                assert stream._configuration is not None
+                used = [stream._configuration.frame_size] if status != FrameMetadataStatus.Error else []
+                buffer.metadata._set(status, sequence, timestamp, used)
+            request._metadata = {k: stored(CONTROLS[k], v) for k, v in metadata.items() if k in CONTROLS}
+            request._status, request._pending = RequestStatus.Complete, 0
+            manager = self.manager_ref()
+            if manager is not None:
+                manager._complete(request)
 
     def _receive(self, request: Request, settings: Any, timestamp: int) -> None:
         """The sensor's stage of frame ``self.sequence``: the request's controls applied, the raw frame read out
@@ -636,18 +649,7 @@ class CameraData:
                 with stage("ISP render"):
                     isp.render(frame.raw, frame.ct, plan, frame.gains, frame.digital_gain, frame.ccm, dest)
                 del dest  # the mapping's export, before the next
-        for stream, buffer in request._buffers.items():
-            assert stream._configuration is not None
-            buffer.metadata._set(frame.status, frame.sequence, frame.timestamp, [stream._configuration.frame_size])
-        with self.lock:
-            if request not in self.in_flight:  # cancelled by stop() meanwhile
-                return
-            self.in_flight.remove(request)
-            request._metadata = {k: stored(CONTROLS[k], v) for k, v in frame.metadata.items() if k in CONTROLS}
-            request._status, request._pending = RequestStatus.Complete, 0
-        manager = self.manager_ref()
-        if manager is not None:
-            manager._complete(request)
+        self._complete(request, frame.status, frame.sequence, frame.timestamp, frame.metadata)
 
 
 @dataclass(frozen=True)
