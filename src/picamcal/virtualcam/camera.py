@@ -554,24 +554,30 @@ class CameraData:
     def _fail_request(self, request: Request, sequence: int, exc: Exception) -> None:
         """Complete a request whose frame could not be made, as a frame in error."""
         log("ERROR", "RPI", "virtualcam", f"frame {sequence} failed: {exc!r}")
-        self._complete(request, FrameMetadataStatus.Error, sequence, 0, {})
+        self._complete(request, FrameMetadataStatus.Error, sequence, 0, {}, filled=False)
 
     def _complete(
-        self, request: Request, status: FrameMetadataStatus, sequence: int, timestamp: int, metadata: dict[str, Any]
+        self,
+        request: Request,
+        status: FrameMetadataStatus,
+        sequence: int,
+        timestamp: int,
+        metadata: dict[str, Any],
+        filled: bool = True,
     ) -> None:
-        """Complete a request of the frame threads, unless :meth:`stop` cancelled it meanwhile: its buffers' and its
-        own metadata set and its completion signalled at once, under the camera's lock. So no request completes
-        after ``stop()`` returns, as libcamera promises (``Camera::stop``) and picamera2 relies on: it flushes the
-        completed requests right after stopping, and one signalled later would come back to it as a frame of the
-        next configuration (its event loop then fails on it, and every request stays held)."""
+        """Complete a request of the frame threads (``filled``: its buffers hold a frame), unless :meth:`stop`
+        cancelled it meanwhile: its buffers' and its own metadata set and its completion signalled at once, under the
+        camera's lock. So no request completes after ``stop()`` returns, as libcamera promises (``Camera::stop``) and
+        picamera2 relies on: it flushes the completed requests right after stopping, and one signalled later would
+        come back to it as a frame of the next configuration (its event loop then fails on it, and every request
+        stays held)."""
         with self.lock:
             if request not in self.in_flight:
                 return
             self.in_flight.remove(request)
             for stream, buffer in request._buffers.items():
                 assert stream._configuration is not None
-                used = [stream._configuration.frame_size] if status != FrameMetadataStatus.Error else []
-                buffer.metadata._set(status, sequence, timestamp, used)
+                buffer.metadata._set(status, sequence, timestamp, [stream._configuration.frame_size] if filled else [])
             request._metadata = {k: stored(CONTROLS[k], v) for k, v in metadata.items() if k in CONTROLS}
             request._status, request._pending = RequestStatus.Complete, 0
             manager = self.manager_ref()
