@@ -10,6 +10,8 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ import pytest
 from picamcal.cli import main
 from picamcal.raw.picamera2.pisp import pisp_compress, pisp_decompress
 from picamcal.virtualcam import Options, VirtualCameraError, shim_directory
+from picamcal.virtualcam.buffers import FrameBufferAllocator
 from picamcal.virtualcam.camera import CameraManager
 from picamcal.virtualcam.config import StreamRole, find_best_mode, output_layout, raw_stride
 from picamcal.virtualcam.controls import CONTROLS, controls, properties
@@ -422,11 +425,6 @@ def test_a_frame_completing_as_the_camera_stops_is_signalled_before_stop_returns
     second) is signalled before stop() returns. picamera2 flushes the completed requests right after stopping: one
     signalled later came back to it as a frame of the next configuration, failed its event loop and left every
     request held (the next test shows it through picamera2)."""
-    import threading
-    import time
-
-    from picamcal.virtualcam.buffers import FrameBufferAllocator
-
     completing = threading.Event()
     original = CameraManager._complete
 

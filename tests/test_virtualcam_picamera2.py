@@ -113,12 +113,17 @@ def under_virtual_camera(
 
 
 def run_script(
-    tmp_path: Path, code: str, *options: str, args: tuple[str, ...] = (), env: dict[str, str] | None = None
+    tmp_path: Path,
+    code: str,
+    *options: str,
+    args: tuple[str, ...] = (),
+    env: dict[str, str] | None = None,
+    timeout: float = 600,
 ) -> subprocess.CompletedProcess:
-    """Run a Python script under ``picamcal virtual-camera OPTIONS``."""
+    """Run a Python script under ``picamcal virtual-camera OPTIONS`` (:func:`under_virtual_camera`)."""
     script = tmp_path / "script.py"
     script.write_text(textwrap.dedent(code))
-    return under_virtual_camera([sys.executable, str(script), *args], *options, cwd=tmp_path, env=env)
+    return under_virtual_camera([sys.executable, str(script), *args], *options, cwd=tmp_path, env=env, timeout=timeout)
 
 
 @pytest.mark.parametrize("platform", ["pisp", "vc4"])
@@ -341,10 +346,7 @@ def test_a_frame_completing_as_the_camera_stops_never_reaches_the_next_configura
     # the next configuration; its event loop failed on it ("Exception during process_requests()", KeyError
     # 'display') and every request stayed held, so the script waited for ever. Now it is signalled before stop()
     # returns (test_virtualcam.py shows it of the camera alone), and picamera2 flushes it with the stop.
-    script = tmp_path / "script.py"
-    script.write_text(textwrap.dedent(STOPPING))
-    command = [sys.executable, str(script)]
-    result = under_virtual_camera(command, "--platform", platform, "--size", "640x480", cwd=tmp_path, timeout=120)
+    result = run_script(tmp_path, STOPPING, "--platform", platform, "--size", "640x480", timeout=120)
     assert result.returncode == 0, result.stderr
     assert "Exception" not in result.stderr, result.stderr
     assert result.stdout.split() == ["320", "240", "640", "480", "320", "240"]
