@@ -394,14 +394,30 @@ def test_an_interrupted_zarr_batch_records_its_frames_and_leaves_no_chunk_tempor
     assert zarr.open_group(stack, mode="r").attrs["picamcal"]["done"] == list(range(INTERRUPTED_FRAMES))
 
 
-#: A dask cluster of two worker processes in the command's own process, running ``picamcal correct`` on it.
+#: A dask cluster of two worker processes in the command's own process, running ``picamcal correct`` on it. Each
+#: worker's reads are slowed by a second, longer than the batch takes to stop its tasks after the signal, so that the
+#: files finished after it are those the bound below counts on any machine. (Unslowed, a file took 0.13 s on a fast
+#: host: one run in five finished more than the bound.)
 DASK_RUN = """
-import sys
-from distributed import LocalCluster
+import sys, time
+from distributed import Client, LocalCluster
 from picamcal.cli import main
+
+def slow_reads(seconds):
+    from picamcal.batch import worker
+
+    read = worker._Stages.read
+
+    def slow(self, job):
+        time.sleep(seconds)
+        return read(self, job)
+
+    worker._Stages.read = slow
 
 if __name__ == "__main__":
     with LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cluster:
+        with Client(cluster) as client:
+            client.run(slow_reads, 1.0)
         main([*sys.argv[1:], "--scheduler", cluster.scheduler_address])
 """
 
@@ -440,8 +456,9 @@ def test_an_interrupted_batch_on_a_dask_cluster_stops_its_tasks(pngs, tmp_path):
     # No new file once the tasks see the stop: besides the files finished when the signal came, at most those each
     # of the two workers' pipelines held (being read, read ahead, in its output slots), as for a pool; a worker
     # asks the scheduler every 0.2 s, and the command sets the stop a moment after the signal, longer on a busy
-    # machine (on a slow host one run finished 7 files of 16 with 2 finished at the signal). The command waits for
-    # the writes under way on the cluster, however busy the machine: the count it says is what is on disk.
+    # machine (on a slow host one run finished 7 files of 16 with 2 finished at the signal; DASK_RUN slows the reads so
+    # that few files start meanwhile). The command waits for the writes under way on the cluster, however busy the
+    # machine: the count it says is what is on disk.
     in_flight = 1 + READ_AHEAD + OUTPUT_SLOTS
     assert set(seen) <= set(finished) and len(finished) <= len(seen) + in_flight * 2 < INTERRUPTED_FRAMES
     assert temporaries(out) == []
